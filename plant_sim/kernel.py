@@ -1,0 +1,342 @@
+"""Fixed-step compiled kernel of the servo axis and its cascade control (numba, nopython).
+
+Physics (paper section III, Fig. 1 and Fig. 3), in load coordinates for the load and motor
+coordinates for the motor side:
+
+    J1 * dω_m/dt = τ_m − F_s / k_r                 motor + coupling + screw (J1 = J_m + J_screw)
+    M  * dv_l/dt = F_s + F_ext(x_l, t) − F_f(v_l)   carriage (load mass M, or J_l for rotary)
+    Δ = θ_m / k_r − x_l                             screw-nut deflection incl. free play
+    F_s = dz(Δ)·k + c·dΔ/dt                         dead zone of total width δ (eq. 5's model),
+                                                    contact force only pushes (clamped) when δ > 0
+
+with k = M·ω_a² (eq. 2), c = 2·ξ_a·k/ω_a, F_f the friction of the axis file reflected back to
+the load (force = k_r·torque), F_ext the load torques of ``[disturbance]`` and the external
+disturbance input. A rigid axis (no ω_a) is one mass M + J1·k_r² in load coordinates.
+
+Integration: staggered leapfrog (symplectic Euler with velocities at half steps, one force
+evaluation per step) with ``nsub`` fixed substeps per speed cycle.
+Friction is a set-valued force: a kick never lets Coulomb friction reverse the load's motion
+(the velocity is clamped to zero), and a load at rest stays at rest while the applied force is
+within the static level (Karnopp). The dead-zone impacts are resolved by the substep, which is
+chosen so that ω_r·dt <= 0.1 (plant_sim.model.MAX_OMEGA_DT); ``tests/test_kernel.py`` shows step-halving convergence.
+
+Control (sampled as in a drive): every speed cycle the motor speed is measured as the backward
+difference of the motor encoder, the PI speed controller (k_sp, T_si, clamping anti-windup at the
+torque limit) computes the torque set point, which passes an optional dead time (whole speed
+cycles) and the current loop (ideal or first-order lag). Every position cycle the P position
+controller (eq. 7) and the paper's vibration detector and speed regulator (Fig. 5, eq. 15, from
+:mod:`regulator.core`, compiled here) compute the speed set point.
+
+All arrays are float64; the layouts are the ``P_*``, ``S_*`` and ``O_*`` index constants.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from regulator import core as _core
+
+_njit = numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
+# Helpers called from the loops are inlined at numba IR level: a plain call passes the arrays
+# with reference counting, which cost ~30x the arithmetic of a substep.
+_inline = numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True, inline="always")
+detector_step = _inline(_core.detector_step)
+switching_factor = _inline(_core.switching_factor)
+regulated_speed = _inline(_core.regulated_speed)
+position_command = _inline(_core.position_command)
+
+# --- parameter vector --------------------------------------------------------------------
+(
+    P_KR,  # transmission ratio k_r, motor rad per load unit
+    P_J1,  # kg m^2, motor side inertia (rigid: unused)
+    P_M,  # load mass (rigid: total mass in load coordinates M + J1 k_r^2)
+    P_RIGID,  # 1.0: rigid one-mass axis
+    P_K,  # N/m, stiffness of the screw-nut element (load coordinates)
+    P_C,  # N s/m, its damping
+    P_HALF_GAP,  # half the total free play, load units
+    P_FC_POS,  # N, Coulomb friction force at the load for v > 0
+    P_FV_POS,  # N per load unit/s, viscous, v > 0
+    P_FC_NEG,  # N, Coulomb, v < 0
+    P_FV_NEG,  # N per load unit/s, viscous, v < 0
+    P_FS,  # N, Stribeck excess static friction
+    P_VS,  # load units/s, Stribeck speed (0: none)
+    P_F_CONST,  # N, constant load force (= -k_r * constant_torque)
+    P_F_PER,  # N, amplitude of the position-periodic force (= k_r * periodic_amplitude)
+    P_PER_PERIOD,  # load units
+    P_PER_PHASE,  # rad
+    P_KSP,  # N m s/rad
+    P_KI,  # N m/rad (= ksp / tsi; 0: P-only)
+    P_TAU_LIM,  # N m (inf: none)
+    P_LAG_ALPHA,  # exp(-dt_sub / current_lag) (0: ideal current loop)
+    P_DELAY_N,  # dead time in whole speed cycles
+    P_TSC,  # s, speed cycle
+    P_NSC,  # speed cycles per position cycle
+    P_NSUB,  # mechanics substeps per speed cycle
+    P_TP,  # s, position cycle
+    P_KV,  # 1/s, position gain
+    P_FB_LOAD,  # 1.0: position loop on the load scale, 0.0: on the motor encoder
+    P_SP_DELAY,  # 1.0: the speed set point takes effect one position cycle later (PDO delay)
+    P_REG_ON,  # 1.0: eq. 15 regulator in the loop (the detector always measures beta)
+    P_REG_N,  # detector window n (n + 1 samples)
+    P_REG_TV,  # s, T_v
+    P_REG_TF,  # s, T_f
+    P_REG_BT,  # rad/s, beta_T
+    P_INV_KR,  # 1 / k_r  (reciprocals: divisions would dominate the substep's critical path)
+    P_INV_J1,  # 1 / J1
+    P_INV_M,  # 1 / P_M
+    N_PARAMS,
+) = range(38)
+
+# --- state vector --------------------------------------------------------------------------
+MAX_DELAY = 2048  # speed cycles of dead time the ring buffer holds
+(
+    S_TH,  # rad, motor angle
+    S_OM,  # rad/s, motor speed
+    S_X,  # load units, load position
+    S_V,  # load units/s, load speed
+    S_INT,  # N m, integral part of the PI speed controller
+    S_TAU,  # N m, motor torque (current loop output)
+    S_TAU_CMD,  # N m, torque set point after the dead time
+    S_TH_PREV,  # rad, motor encoder at the previous speed sample
+    S_OM_MEAS,  # rad/s, measured motor speed (drive's actual value)
+    S_T,  # s, simulated time
+    S_SP_PENDING,  # rad/s, set point waiting for the next position cycle
+    S_DLY_IDX,  # index into the dead-time ring buffer
+    S_DLY0,  # first slot of the ring buffer
+) = range(13)
+N_STATE = S_DLY0 + MAX_DELAY
+
+# --- trace rows of the closed loop (one per position cycle) ------------------------------------
+(
+    O_T,
+    O_XREF,
+    O_WSET,
+    O_TH,
+    O_WM,
+    O_X,
+    O_TAU,
+    O_DIST,
+    O_BETA,
+    O_LAM,
+    O_WS,
+    O_WC,
+    N_OUT,
+) = range(13)
+
+
+@_inline
+def spring_force(p: np.ndarray, th: float, om: float, x: float, v: float) -> float:
+    """Force of the screw-nut element on the load (N), positive towards +x."""
+    d = th * p[P_INV_KR] - x
+    ddot = om * p[P_INV_KR] - v
+    half = p[P_HALF_GAP]
+    if half <= 0.0:
+        return p[P_K] * d + p[P_C] * ddot
+    if d > half:
+        f = p[P_K] * (d - half) + p[P_C] * ddot
+        return f if f > 0.0 else 0.0
+    if d < -half:
+        f = p[P_K] * (d + half) + p[P_C] * ddot
+        return f if f < 0.0 else 0.0
+    return 0.0
+
+
+@_inline
+def load_force(p: np.ndarray, x: float) -> float:
+    """Position-dependent load force of ``[disturbance]`` (N), positive towards +x."""
+    f = p[P_F_CONST]
+    if p[P_F_PER] != 0.0:
+        f -= p[P_F_PER] * math.sin(2.0 * math.pi * x / p[P_PER_PERIOD] + p[P_PER_PHASE])
+    return f
+
+
+@_inline
+def kick_load(p: np.ndarray, v: float, f_applied: float, h: float) -> float:
+    """New load speed after impulse ``f_applied*h`` plus friction (set-valued at v = 0)."""
+    h_m = h * p[P_INV_M]
+    fs = p[P_FS]
+    if v == 0.0:
+        if f_applied > 0.0:
+            level = p[P_FC_POS] + fs
+            return 0.0 if f_applied <= level else (f_applied - level) * h_m
+        if f_applied < 0.0:
+            level = p[P_FC_NEG] + fs
+            return 0.0 if -f_applied <= level else (f_applied + level) * h_m
+        return 0.0
+    if v > 0.0:
+        fc = p[P_FC_POS]
+        fv = p[P_FV_POS]
+        sgn = 1.0
+    else:
+        fc = p[P_FC_NEG]
+        fv = p[P_FV_NEG]
+        sgn = -1.0
+    if fs != 0.0:
+        r = v / p[P_VS]
+        fc += fs * math.exp(-r * r)
+    vn = v + (f_applied - sgn * fc - fv * v) * h_m
+    if fc > 0.0 and vn * sgn < 0.0:
+        return 0.0  # Coulomb friction stops the load; it cannot reverse it
+    return vn
+
+
+@_inline
+def _kick(p: np.ndarray, st: np.ndarray, tau: float, f_dist: float, h: float) -> None:
+    if p[P_RIGID] != 0.0:
+        kr = p[P_KR]
+        f = kr * tau + f_dist + load_force(p, st[S_X])
+        v = kick_load(p, st[S_V], f, h)
+        st[S_V] = v
+        st[S_OM] = kr * v
+        return
+    fs = spring_force(p, st[S_TH], st[S_OM], st[S_X], st[S_V])
+    st[S_OM] += (tau - fs * p[P_INV_KR]) * h * p[P_INV_J1]
+    st[S_V] = kick_load(p, st[S_V], fs + f_dist + load_force(p, st[S_X]), h)
+
+
+@_inline
+def substep(p: np.ndarray, st: np.ndarray, tau: float, f_dist: float, dt: float) -> None:
+    """One staggered leapfrog step of the mechanics under constant motor torque and load force:
+    velocities live at half steps (v_{n+1/2} = v_{n-1/2} + a(x_n, v_{n-1/2})·dt, then
+    x_{n+1} = x_n + v_{n+1/2}·dt). One force evaluation per step, symplectic and second order
+    for the conservative forces, first order in the small velocity-dependent ones."""
+    _kick(p, st, tau, f_dist, dt)
+    st[S_X] += st[S_V] * dt
+    if p[P_RIGID] != 0.0:
+        st[S_TH] = p[P_KR] * st[S_X]
+    else:
+        st[S_TH] += st[S_OM] * dt
+
+
+@_inline
+def _measure_speed(p: np.ndarray, st: np.ndarray) -> None:
+    st[S_OM_MEAS] = (st[S_TH] - st[S_TH_PREV]) / p[P_TSC]
+    st[S_TH_PREV] = st[S_TH]
+
+
+@_inline
+def _torque_phase(p: np.ndarray, st: np.ndarray, cmd: float, f_dist: float) -> None:
+    """Current loop and mechanics over one speed cycle for a torque set point ``cmd``."""
+    st[S_TAU_CMD] = cmd
+    nsub = int(p[P_NSUB])
+    dt = p[P_TSC] / nsub
+    alpha = p[P_LAG_ALPHA]
+    for _ in range(nsub):
+        st[S_TAU] = cmd + (st[S_TAU] - cmd) * alpha
+        substep(p, st, st[S_TAU], f_dist, dt)
+    st[S_T] += p[P_TSC]
+
+
+@_inline
+def speed_cycle(p: np.ndarray, st: np.ndarray, omega_set: float, f_dist: float) -> None:
+    """One speed-controller cycle: measure, PI with anti-windup, dead time, current loop,
+    mechanics for one speed cycle."""
+    tsc = p[P_TSC]
+    _measure_speed(p, st)
+    err = omega_set - st[S_OM_MEAS]
+    kp_part = p[P_KSP] * err
+    lim = p[P_TAU_LIM]
+    if p[P_KI] != 0.0:
+        integ = st[S_INT] + p[P_KI] * err * tsc
+        # clamping anti-windup: the integral never pushes the sum beyond the torque limit
+        if integ > lim - kp_part:
+            integ = max(lim - kp_part, min(st[S_INT], integ))
+        elif integ < -lim - kp_part:
+            integ = min(-lim - kp_part, max(st[S_INT], integ))
+        st[S_INT] = integ
+    u = kp_part + st[S_INT]
+    u = min(lim, max(-lim, u))
+    n_delay = int(p[P_DELAY_N])
+    if n_delay > 0:
+        i = int(st[S_DLY_IDX])
+        cmd = st[S_DLY0 + i]
+        st[S_DLY0 + i] = u
+        st[S_DLY_IDX] = (i + 1) % n_delay
+    else:
+        cmd = u
+    _torque_phase(p, st, cmd, f_dist)
+
+
+@_njit
+def advance(p: np.ndarray, st: np.ndarray, omega_set: float, disturbance_nm: float) -> None:
+    """One position cycle of the drive: ``nsc`` speed cycles at a constant speed set point
+    (rad/s at the motor) and a constant external disturbance (N·m reflected to the motor,
+    positive pushes towards +x)."""
+    f_dist = p[P_KR] * disturbance_nm
+    for _ in range(int(p[P_NSC])):
+        speed_cycle(p, st, omega_set, f_dist)
+
+
+@_njit
+def advance_torque(p: np.ndarray, st: np.ndarray, torque_nm: float, disturbance_nm: float) -> None:
+    """One position cycle with the speed controller bypassed: a fixed torque set point (N·m)
+    through the current loop (0 for a disabled drive: the axis coasts). The speed is still
+    measured and the PI integral is cleared, as a drive does when its power stage is off."""
+    f_dist = p[P_KR] * disturbance_nm
+    st[S_INT] = 0.0
+    for _ in range(int(p[P_NSC])):
+        _measure_speed(p, st)
+        _torque_phase(p, st, torque_nm, f_dist)
+
+
+@_njit
+def run_closed_loop(
+    p: np.ndarray,
+    st: np.ndarray,
+    reg: np.ndarray,
+    x_ref: np.ndarray,
+    v_ref: np.ndarray,
+    dist_nm: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Fig. 1 (regulator off) or Fig. 6 (on): one row of ``out`` per position cycle.
+
+    x_ref: load units, interpolator position; v_ref: load units/s, interpolator speed
+    (ω_s = k_r·v_ref); dist_nm: N·m at the motor, held over each position cycle.
+    Row k holds the values sampled at the start of cycle k and the set point computed there.
+    """
+    kr = p[P_KR]
+    n_win = int(p[P_REG_N])
+    for k in range(x_ref.shape[0]):
+        x_fb = st[S_X] if p[P_FB_LOAD] != 0.0 else st[S_TH] / kr
+        w_c = position_command(x_ref[k], x_fb, p[P_KV], kr)
+        w_s = kr * v_ref[k]
+        beta = detector_step(reg, n_win, p[P_TP], p[P_REG_TV], p[P_REG_TF], w_s - w_c)
+        lam = switching_factor(beta, p[P_REG_BT]) if p[P_REG_ON] != 0.0 else 1.0
+        w_r = regulated_speed(w_s, w_c, lam)
+        if p[P_SP_DELAY] != 0.0:
+            w_apply = st[S_SP_PENDING]
+            st[S_SP_PENDING] = w_r
+        else:
+            w_apply = w_r
+        out[k, O_T] = st[S_T]
+        out[k, O_XREF] = x_ref[k]
+        out[k, O_WSET] = w_r
+        out[k, O_TH] = st[S_TH]
+        out[k, O_WM] = st[S_OM_MEAS]
+        out[k, O_X] = st[S_X]
+        out[k, O_TAU] = st[S_TAU]
+        out[k, O_DIST] = dist_nm[k]
+        out[k, O_BETA] = beta
+        out[k, O_LAM] = lam
+        out[k, O_WS] = w_s
+        out[k, O_WC] = w_c
+        advance(p, st, w_apply, dist_nm[k])
+
+
+@_njit
+def run_mechanics(
+    p: np.ndarray, st: np.ndarray, tau: float, f_dist: float, dt: float, out: np.ndarray
+) -> None:
+    """Open-loop mechanics under a constant motor torque: row i = (θ, ω, x, v) after step i.
+
+    For physics tests (free oscillation, energy) without the controllers."""
+    for i in range(out.shape[0]):
+        substep(p, st, tau, f_dist, dt)
+        out[i, 0] = st[S_TH]
+        out[i, 1] = st[S_OM]
+        out[i, 2] = st[S_X]
+        out[i, 3] = st[S_V]

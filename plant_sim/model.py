@@ -1,0 +1,184 @@
+"""The axis as a steppable plant: kernel parameters from an axis file, and :class:`AxisPlant`.
+
+:class:`AxisPlant` is what a drive runs: the mechanics plus the drive's own loops (PI speed
+controller, dead time, current loop). It advances one position cycle per call with a speed set
+point, and exposes what a drive measures. The position controller is *not* in here: the
+simulator's closed loop (:mod:`plant_sim.simulate`) and the bridge (over the bus) close it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from regulator import RegulatorConfig
+
+from . import kernel as K
+from .axis import AxisConfig, PositionFeedback
+from .errors import ScenarioError
+
+#: Largest ω·dt of a mechanics substep (ω_r for an elastic axis); see kernel docstring.
+MAX_OMEGA_DT = 0.1
+
+
+def default_substeps(axis: AxisConfig) -> int:
+    """Substeps per speed cycle so that ω_r·dt <= MAX_OMEGA_DT (1 for a rigid axis)."""
+    wr = axis.resonance
+    if wr is None:
+        return 1
+    return max(1, math.ceil(wr * axis.control.speed_cycle / MAX_OMEGA_DT))
+
+
+@dataclass(frozen=True)
+class KernelOptions:
+    """Numerical and loop options that are not physics of the axis.
+
+    substeps: mechanics substeps per speed cycle (None: :func:`default_substeps`).
+    setpoint_delay_cycles: 0, or 1 for the one-cycle PDO delay of a CANopen loop (the set point
+    computed at SYNC k takes effect at SYNC k+1).
+    """
+
+    substeps: int | None = None
+    setpoint_delay_cycles: int = 0
+
+    def __post_init__(self) -> None:
+        if self.substeps is not None and not 1 <= self.substeps <= 10_000:
+            raise ScenarioError(f"substeps = {self.substeps}: allowed 1..10000")
+        if self.setpoint_delay_cycles not in (0, 1):
+            raise ScenarioError(
+                f"setpoint_delay_cycles = {self.setpoint_delay_cycles}: allowed 0 or 1"
+            )
+
+
+def build_params(
+    axis: AxisConfig,
+    regulator: RegulatorConfig | None = None,
+    options: KernelOptions = KernelOptions(),
+) -> np.ndarray:
+    """The kernel's parameter vector (``kernel.P_*``) for an axis, regulator and options."""
+    c, m, fr, dist = axis.control, axis.mechanics, axis.friction, axis.disturbance
+    kr = axis.transmission_ratio
+    p = np.zeros(K.N_PARAMS)
+    p[K.P_KR] = kr
+    p[K.P_J1] = axis.motor_side_inertia
+    if axis.is_rigid:
+        p[K.P_RIGID] = 1.0
+        p[K.P_M] = m.load_mass + axis.motor_side_inertia * kr**2
+    else:
+        p[K.P_M] = m.load_mass
+        p[K.P_K] = axis.stiffness
+        p[K.P_C] = axis.damping_coefficient
+        p[K.P_HALF_GAP] = 0.5 * (m.backlash or 0.0)
+    coulomb = fr.coulomb or 0.0
+    viscous = fr.viscous or 0.0
+    p[K.P_FC_POS] = kr * coulomb
+    p[K.P_FV_POS] = kr * viscous
+    p[K.P_FC_NEG] = kr * (fr.coulomb_negative if fr.coulomb_negative is not None else coulomb)
+    p[K.P_FV_NEG] = kr * (fr.viscous_negative if fr.viscous_negative is not None else viscous)
+    if fr.stribeck is not None and fr.stribeck_speed is not None:
+        p[K.P_FS] = kr * fr.stribeck
+        p[K.P_VS] = fr.stribeck_speed
+    p[K.P_F_CONST] = -kr * (dist.constant_torque or 0.0)
+    if dist.periodic_amplitude is not None and dist.periodic_period is not None:
+        p[K.P_F_PER] = kr * dist.periodic_amplitude
+        p[K.P_PER_PERIOD] = dist.periodic_period
+        p[K.P_PER_PHASE] = dist.periodic_phase or 0.0
+    p[K.P_KSP] = c.ksp
+    p[K.P_KI] = 0.0 if c.tsi is None else c.ksp / c.tsi
+    p[K.P_TAU_LIM] = math.inf if c.torque_limit is None else c.torque_limit
+    nsub = options.substeps or default_substeps(axis)
+    dt_sub = c.speed_cycle / nsub
+    p[K.P_LAG_ALPHA] = math.exp(-dt_sub / c.current_lag) if c.current_lag else 0.0
+    n_delay = round((c.delay or 0.0) / c.speed_cycle)
+    if n_delay > K.MAX_DELAY:
+        raise ScenarioError(
+            f"control.delay = {c.delay} s is {n_delay} speed cycles; at most {K.MAX_DELAY}"
+        )
+    p[K.P_DELAY_N] = n_delay
+    p[K.P_TSC] = c.speed_cycle
+    p[K.P_NSC] = c.speed_cycles_per_position_cycle
+    p[K.P_NSUB] = nsub
+    p[K.P_TP] = c.position_cycle
+    p[K.P_KV] = c.kv
+    p[K.P_FB_LOAD] = 1.0 if c.position_feedback is PositionFeedback.LOAD else 0.0
+    p[K.P_SP_DELAY] = float(options.setpoint_delay_cycles)
+    reg = regulator or RegulatorConfig(kv=c.kv, cycle_s=c.position_cycle, enabled=False)
+    p[K.P_REG_ON] = 1.0 if reg.enabled else 0.0
+    p[K.P_REG_N] = reg.n
+    p[K.P_REG_TV] = reg.effective_tv_s
+    p[K.P_REG_TF] = reg.tf_s
+    p[K.P_REG_BT] = reg.beta_t_rad_s
+    p[K.P_INV_KR] = 1.0 / p[K.P_KR]
+    p[K.P_INV_J1] = 1.0 / p[K.P_J1]
+    p[K.P_INV_M] = 1.0 / p[K.P_M]
+    return p
+
+
+def initial_state(axis: AxisConfig, position: float = 0.0) -> np.ndarray:
+    """At rest, load at ``position`` (load units), motor centred in the free play."""
+    st = np.zeros(K.N_STATE)
+    st[K.S_X] = position
+    st[K.S_TH] = axis.transmission_ratio * position
+    st[K.S_TH_PREV] = st[K.S_TH]
+    return st
+
+
+class AxisPlant:
+    """Mechanics + the drive's inner loops of one axis, stepped one position cycle at a time.
+
+    >>> plant = AxisPlant(load_axis("config/paper_axis.toml"))
+    >>> plant.advance(speed_setpoint_rad_s=10.0)      # one position cycle (1 ms)
+    >>> plant.motor_position_rad, plant.load_position  # what the encoders read
+    """
+
+    def __init__(
+        self,
+        axis: AxisConfig,
+        options: KernelOptions = KernelOptions(),
+        position: float = 0.0,
+    ) -> None:
+        self.axis = axis
+        self._p = build_params(axis, None, options)
+        self._st = initial_state(axis, position)
+
+    def advance(self, speed_setpoint_rad_s: float, disturbance_nm: float = 0.0) -> None:
+        """Run one position cycle at a constant speed set point (rad/s, motor) and external
+        disturbance (N·m reflected to the motor, positive pushes towards +x)."""
+        K.advance(self._p, self._st, float(speed_setpoint_rad_s), float(disturbance_nm))
+
+    def advance_torque(self, torque_nm: float, disturbance_nm: float = 0.0) -> None:
+        """Run one position cycle with the speed loop bypassed at a fixed torque set point
+        (0 N·m: power stage off, the axis coasts); clears the speed controller's integral."""
+        K.advance_torque(self._p, self._st, float(torque_nm), float(disturbance_nm))
+
+    @property
+    def time_s(self) -> float:
+        return float(self._st[K.S_T])
+
+    @property
+    def motor_position_rad(self) -> float:
+        return float(self._st[K.S_TH])
+
+    @property
+    def motor_speed_rad_s(self) -> float:
+        """The drive's speed actual value (encoder difference over the last speed cycle)."""
+        return float(self._st[K.S_OM_MEAS])
+
+    @property
+    def load_position(self) -> float:
+        """Direct measuring system, load units."""
+        return float(self._st[K.S_X])
+
+    @property
+    def load_speed(self) -> float:
+        return float(self._st[K.S_V])
+
+    @property
+    def motor_torque_nm(self) -> float:
+        return float(self._st[K.S_TAU])
+
+    @property
+    def position_cycle_s(self) -> float:
+        return self.axis.control.position_cycle

@@ -1,0 +1,108 @@
+"""Closed-loop simulation (Fig. 1 / Fig. 6) of an axis file, producing a :class:`Trace`.
+
+The position controller, vibration detector and speed regulator run in the compiled kernel
+at the position cycle; references and disturbances are arrays, one value per position cycle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from regulator import RegulatorConfig
+
+from . import kernel as K
+from .axis import AxisConfig
+from .errors import ScenarioError
+from .model import KernelOptions, build_params, initial_state
+from .trace import Trace
+
+
+@dataclass(frozen=True)
+class References:
+    """Interpolator output and external disturbance, one value per position cycle.
+
+    position: load units; speed: load units/s (ω_s = k_r·speed); disturbance_nm: N·m reflected
+    to the motor, positive pushes the load towards +x.
+    """
+
+    position: np.ndarray
+    speed: np.ndarray
+    disturbance_nm: np.ndarray
+
+    def __post_init__(self) -> None:
+        arrays = {
+            "position": self.position,
+            "speed": self.speed,
+            "disturbance_nm": self.disturbance_nm,
+        }
+        n = len(self.position)
+        for name, arr in arrays.items():
+            arr = np.ascontiguousarray(arr, dtype=float)
+            if arr.ndim != 1 or len(arr) != n:
+                raise ScenarioError(f"{name}: shape {arr.shape}, expected ({n},)")
+            if not np.all(np.isfinite(arr)):
+                raise ScenarioError(f"{name}: contains NaN or inf")
+            object.__setattr__(self, name, arr)
+        if n < 1:
+            raise ScenarioError("references are empty")
+
+    @classmethod
+    def from_position(
+        cls, position: np.ndarray, cycle_s: float, disturbance_nm: np.ndarray | None = None
+    ) -> References:
+        """Speed from the position reference by forward difference (the interpolator's speed
+        over the coming cycle)."""
+        position = np.asarray(position, dtype=float)
+        speed = np.empty_like(position)
+        speed[:-1] = np.diff(position) / cycle_s
+        speed[-1] = speed[-2] if len(position) > 1 else 0.0
+        dist = np.zeros_like(position) if disturbance_nm is None else disturbance_nm
+        return cls(position, speed, dist)
+
+
+def simulate(
+    axis: AxisConfig,
+    refs: References,
+    regulator: RegulatorConfig | None = None,
+    options: KernelOptions = KernelOptions(),
+    start_position: float | None = None,
+) -> Trace:
+    """Run the closed loop; one trace row per position cycle.
+
+    ``regulator``: None runs the ordinary control of Fig. 1 (the detector still measures β);
+    a config with ``enabled=True`` inserts the speed regulator of Fig. 6 / eq. 15.
+    Columns: the trace-file columns plus ``beta``, ``lambda``, ``omega_s``, ``omega_c``.
+    """
+    p = build_params(axis, regulator, options)
+    x0 = float(refs.position[0]) if start_position is None else start_position
+    st = initial_state(axis, x0)
+    reg_cfg = regulator or RegulatorConfig(
+        kv=axis.control.kv, cycle_s=axis.control.position_cycle, enabled=False
+    )
+    reg_state = np.zeros(_detector_size(reg_cfg.n))
+    out = np.empty((len(refs.position), K.N_OUT))
+    K.run_closed_loop(p, st, reg_state, refs.position, refs.speed, refs.disturbance_nm, out)
+    return Trace(
+        {
+            "time": out[:, K.O_T],
+            "position_reference": out[:, K.O_XREF],
+            "speed_setpoint": out[:, K.O_WSET],
+            "motor_position": out[:, K.O_TH],
+            "motor_speed": out[:, K.O_WM],
+            "load_position": out[:, K.O_X],
+            "motor_torque": out[:, K.O_TAU],
+            "disturbance": out[:, K.O_DIST],
+            "beta": out[:, K.O_BETA],
+            "lambda": out[:, K.O_LAM],
+            "omega_s": out[:, K.O_WS],
+            "omega_c": out[:, K.O_WC],
+        }
+    )
+
+
+def _detector_size(n: int) -> int:
+    from regulator.core import detector_state_size
+
+    return detector_state_size(n)

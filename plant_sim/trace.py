@@ -1,0 +1,232 @@
+"""Servo traces (``shared/spec/trace-file.md``): one CSV, one header row, one row per sample.
+
+:class:`Trace` holds named float64 columns of equal length. :func:`read_trace` enforces the
+spec's rules (required columns, numeric cells, finite values, strictly increasing time, at
+least 100 rows) and warns on implausible units without rescaling; :class:`TraceWriter` writes
+row by row and flushes regularly so a killed recorder leaves a readable file.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import warnings
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from .errors import TraceFileError, TraceWarning
+
+REQUIRED_COLUMNS = ("time", "motor_position", "motor_torque")
+MIN_ROWS = 100
+
+#: Columns of the spec with their units (extra columns are allowed and kept).
+COLUMN_UNITS = {
+    "time": "s",
+    "position_reference": "load unit",
+    "speed_setpoint": "rad/s (motor)",
+    "motor_position": "rad (motor)",
+    "motor_speed": "rad/s (motor)",
+    "load_position": "load unit",
+    "motor_torque": "N m (motor)",
+    "disturbance": "N m (motor)",
+    # written by this project's simulator and bridge in addition
+    "beta": "rad/s (motor), vibration level",
+    "lambda": "1, switching factor of eq. 15",
+}
+
+#: Conventional column order for writing (others follow in their own order).
+COLUMN_ORDER = tuple(COLUMN_UNITS)
+
+
+@dataclass(frozen=True)
+class Trace:
+    """Named columns of one recording; every column is a float64 array of the same length."""
+
+    columns: Mapping[str, np.ndarray]
+
+    def __post_init__(self) -> None:
+        cols = {name: np.asarray(values, dtype=float) for name, values in self.columns.items()}
+        lengths = {name: len(v) for name, v in cols.items()}
+        if len(set(lengths.values())) > 1:
+            raise TraceFileError(f"columns differ in length: {lengths}")
+        if "time" not in cols:
+            raise TraceFileError("a trace needs a 'time' column", column="time")
+        object.__setattr__(self, "columns", cols)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise TraceFileError(
+                f"trace has no column {name!r}; it has {', '.join(self.columns)}", column=name
+            ) from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.columns
+
+    def __len__(self) -> int:
+        return len(self.columns["time"])
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.columns["time"]
+
+    @property
+    def names(self) -> list[str]:
+        ordered = [c for c in COLUMN_ORDER if c in self.columns]
+        return ordered + [c for c in self.columns if c not in COLUMN_UNITS]
+
+    def with_columns(self, extra: Mapping[str, np.ndarray]) -> Trace:
+        return Trace({**self.columns, **extra})
+
+    def window(self, t_start: float, t_end: float) -> Trace:
+        """Rows with t_start <= time < t_end."""
+        keep = (self.time >= t_start) & (self.time < t_end)
+        return Trace({k: v[keep] for k, v in self.columns.items()})
+
+    def to_csv(self, path: str | Path) -> None:
+        with TraceWriter(path, self.names) as writer:
+            writer.write_rows(np.column_stack([self.columns[c] for c in self.names]))
+
+
+class TraceWriter:
+    """Row-wise CSV writer that flushes every ``flush_every`` rows (and on close)."""
+
+    def __init__(self, path: str | Path, columns: Sequence[str], flush_every: int = 100) -> None:
+        if "time" not in columns:
+            raise TraceFileError("a trace needs a 'time' column", column="time")
+        self.columns = list(columns)
+        self._file: IO[str] = open(path, "w", newline="", encoding="utf-8")  # noqa: SIM115
+        self._writer = csv.writer(self._file)
+        self._writer.writerow(self.columns)
+        self._flush_every = max(1, flush_every)
+        self._pending = 0
+
+    def write_row(self, values: Sequence[float]) -> None:
+        self._writer.writerow([repr(float(v)) for v in values])
+        self._pending += 1
+        if self._pending >= self._flush_every:
+            self.flush()
+
+    def write_rows(self, rows: Iterable[Sequence[float]]) -> None:
+        for row in rows:
+            self.write_row(row)
+
+    def flush(self) -> None:
+        self._file.flush()
+        self._pending = 0
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self.flush()
+            self._file.close()
+
+    def __enter__(self) -> TraceWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _plausibility(trace: Trace, path: Path) -> None:
+    """Warn on a column whose range does not fit its unit (spec: warn, never rescale)."""
+    limits = {
+        "position_reference": 100.0,  # load units: 100 m or 100 rad
+        "load_position": 100.0,
+        "motor_speed": 2e4,  # rad/s: ~190,000 rpm
+        "speed_setpoint": 2e4,
+        "motor_torque": 1e6,  # N m (or N for a load-side trace)
+    }
+    for name, limit in limits.items():
+        if name in trace:
+            peak = float(np.max(np.abs(trace[name])))
+            if peak > limit:
+                warnings.warn(
+                    f"{path}: column {name!r} reaches {peak:g}, implausible for "
+                    f"{COLUMN_UNITS[name]} (limit {limit:g}); wrong unit (mm? deg? rpm?)",
+                    TraceWarning,
+                    stacklevel=3,
+                )
+    dt = np.diff(trace.time)
+    if len(dt) and float(np.median(dt)) > 1.0:
+        warnings.warn(
+            f"{path}: median sample time {float(np.median(dt)):g} s; is time in ms?",
+            TraceWarning,
+            stacklevel=3,
+        )
+
+
+def read_trace(path: str | Path, required: Sequence[str] = REQUIRED_COLUMNS) -> Trace:
+    """Read and check a trace file; raises TraceFileError naming the column or row."""
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except FileNotFoundError as exc:
+        raise TraceFileError(f"{path}: no such trace file") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise TraceFileError(f"{path}: cannot read ({exc})") from exc
+    if not rows:
+        raise TraceFileError(f"{path}: empty file, expected a header row")
+    header = [h.strip() for h in rows[0]]
+    if len(set(header)) != len(header):
+        dup = sorted({h for h in header if header.count(h) > 1})
+        raise TraceFileError(f"{path}: duplicate column(s) {dup}", column=dup[0])
+    for name in required:
+        if name not in header:
+            raise TraceFileError(
+                f"{path}: missing required column {name!r} (header: {', '.join(header)})",
+                column=name,
+            )
+    body = rows[1:]
+    if len(body) < MIN_ROWS:
+        raise TraceFileError(f"{path}: {len(body)} data rows, at least {MIN_ROWS} needed")
+    data = np.empty((len(body), len(header)))
+    for i, row in enumerate(body):
+        line = i + 2  # 1-based, header is line 1
+        if len(row) != len(header):
+            raise TraceFileError(
+                f"{path}: line {line} has {len(row)} cells, header has {len(header)}", row=line
+            )
+        for j, cell in enumerate(row):
+            try:
+                data[i, j] = float(cell)
+            except ValueError:
+                raise TraceFileError(
+                    f"{path}: line {line}, column {header[j]!r}: {cell!r} is not a number",
+                    column=header[j],
+                    row=line,
+                ) from None
+    for j, name in enumerate(header):
+        bad = ~np.isfinite(data[:, j])
+        if bad.any() and (name in required or name in COLUMN_UNITS):
+            line = int(np.argmax(bad)) + 2
+            raise TraceFileError(
+                f"{path}: line {line}, column {name!r}: {data[line - 2, j]} (NaN/inf not allowed)",
+                column=name,
+                row=line,
+            )
+    time = data[:, header.index("time")]
+    steps = np.diff(time)
+    if (steps <= 0).any():
+        line = int(np.argmax(steps <= 0)) + 3
+        raise TraceFileError(
+            f"{path}: line {line}, column 'time': {time[line - 2]!r} does not increase "
+            f"(previous {time[line - 3]!r}); time must be strictly increasing",
+            column="time",
+            row=line,
+        )
+    trace = Trace({name: data[:, j].copy() for j, name in enumerate(header)})
+    _plausibility(trace, path)
+    return trace
+
+
+def uniform_step(trace: Trace, rel_tol: float = 1e-3) -> float | None:
+    """The sample time if ``time`` is uniform within rel_tol, else None."""
+    dt = np.diff(trace.time)
+    step = float(np.median(dt))
+    return step if np.all(np.abs(dt - step) <= rel_tol * step) and math.isfinite(step) else None
