@@ -83,7 +83,9 @@ class Mechanics:
         _check_range("mechanics.motor_inertia", self.motor_inertia, low=0.0, low_open=True)
         _check_range("mechanics.screw_inertia", self.screw_inertia, low=0.0)
         _check_range("mechanics.load_mass", self.load_mass, low=0.0, low_open=True)
-        _check_range("mechanics.antiresonance", self.antiresonance, low=0.0, low_open=True, high=1e6)
+        _check_range(
+            "mechanics.antiresonance", self.antiresonance, low=0.0, low_open=True, high=1e6
+        )
         _check_range("mechanics.damping_ratio", self.damping_ratio, low=0.0, high=1.0)
         _check_range("mechanics.backlash", self.backlash, low=0.0, high=0.1)
         if self.damping_ratio is not None and self.antiresonance is None:
@@ -151,7 +153,9 @@ class Disturbance:
         _check_range("disturbance.periodic_period", self.periodic_period, low=0.0, low_open=True)
         _check_range("disturbance.periodic_phase", self.periodic_phase, low=-1e3, high=1e3)
         if (self.periodic_amplitude is None) != (self.periodic_period is None):
-            given = "periodic_amplitude" if self.periodic_amplitude is not None else "periodic_period"
+            given = (
+                "periodic_amplitude" if self.periodic_amplitude is not None else "periodic_period"
+            )
             raise _fail(
                 f"disturbance.{given}",
                 getattr(self, given),
@@ -372,7 +376,9 @@ def axis_from_mapping(doc: Mapping[str, Any]) -> AxisConfig:
     kind = AxisKind(axis["kind"])
     load_key = "load_mass" if kind is AxisKind.LINEAR else "load_inertia"
     if load_key not in doc.get("mechanics", {}):
-        raise AxisFileError(f"missing required key mechanics.{load_key}", key=f"mechanics.{load_key}")
+        raise AxisFileError(
+            f"missing required key mechanics.{load_key}", key=f"mechanics.{load_key}"
+        )
     parts = {name: _section_values(name, doc.get(name, {}), kind) for name in _SECTIONS}
     return AxisConfig(
         kind=kind,
@@ -415,7 +421,11 @@ def _fmt(value: object) -> str:
 def dump_axis(axis: AxisConfig, header: str = "") -> str:
     """TOML text of an axis (absent physics stays absent); ``header`` becomes comments."""
     lines = [f"# {line}".rstrip() for line in header.splitlines()]
-    lines += ["[axis]", f'kind = "{axis.kind.value}"', f"transmission_ratio = {axis.transmission_ratio!r}"]
+    lines += [
+        "[axis]",
+        f'kind = "{axis.kind.value}"',
+        f"transmission_ratio = {axis.transmission_ratio!r}",
+    ]
     for name in _SECTIONS:
         part = getattr(axis, name)
         body = []

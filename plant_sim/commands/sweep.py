@@ -1,0 +1,163 @@
+"""``python -m plant_sim sweep --out DIR``: vibration frequency over k_v and δ.
+
+Tests the paper's claims (section VI, eq. 12-13): the limit-cycle frequency lies in the band
+k_v/4..k_v, is proportional to k_v, and does not depend on the backlash δ. Every cell runs
+section X with the ordinary control and measures the dominant frequency of the following
+error after the disturbance (plant_sim.report.summarize). Writes sweep.csv, sweep.md (the
+table and the verdicts), sweep.png and sweep.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from ..axis import AxisConfig
+from ..report import summarize
+from ..scenarios import SectionX, run_section_x
+from .common import add_axis_argument, read_axis
+from .paper import LIMIT_CYCLE_VISCOUS
+
+NAME = "sweep"
+HELP = "vibration frequency over k_v and backlash: band, proportionality, independence of δ"
+
+DEFAULT_KV = (15.0, 20.0, 25.0, 30.0, 40.0, 50.0)
+DEFAULT_BACKLASH_MM = (0.05, 0.1, 0.2, 0.4)
+
+
+def _float_list(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated numbers") from None
+    if not values or any(not v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: every value must be > 0")
+    return values
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    add_axis_argument(parser)
+    parser.add_argument("--kv", type=_float_list, default=DEFAULT_KV, help="k_v values, 1/s")
+    parser.add_argument(
+        "--backlash-mm", type=_float_list, default=DEFAULT_BACKLASH_MM, help="δ values, mm"
+    )
+    parser.add_argument(
+        "--viscous",
+        type=float,
+        default=LIMIT_CYCLE_VISCOUS,
+        help="friction.viscous for the sweep (N m s/m; default: the limit-cycle variant of "
+        "`paper`; give the axis file's own value to sweep it as is)",
+    )
+
+
+@dataclass(frozen=True)
+class Cell:
+    kv: float
+    backlash_m: float
+    frequency_hz: float | None
+    amplitude_m: float
+
+    @property
+    def in_band(self) -> bool:
+        return self.frequency_hz is not None and self.kv / 4 <= self.frequency_hz <= self.kv
+
+
+def sweep(axis: AxisConfig, kvs: tuple[float, ...], backlash_m: tuple[float, ...]) -> list[Cell]:
+    cells = []
+    for kv in tqdm(kvs, desc="sweep k_v", unit="k_v", leave=False):
+        for delta in backlash_m:
+            variant = axis.with_values({"control.kv": kv, "mechanics.backlash": delta})
+            s = summarize(run_section_x(variant, with_regulator=False), variant, SectionX())
+            cells.append(Cell(kv, delta, s.dominant_frequency_hz, s.vibration_amplitude))
+    return cells
+
+
+def verdicts(cells: list[Cell]) -> dict[str, object]:
+    """The paper's three claims, measured on the vibrating cells."""
+    vib = [c for c in cells if c.frequency_hz is not None]
+    out: dict[str, object] = {
+        "cells": len(cells),
+        "vibrating_cells": len(vib),
+        "in_band": sum(c.in_band for c in vib),
+    }
+    if len(vib) >= 2:
+        kv = np.array([c.kv for c in vib])
+        f = np.array([c.frequency_hz for c in vib], dtype=float)
+        ratio = float(np.sum(kv * f) / np.sum(kv * kv))  # least squares f = ratio * kv
+        resid = f - ratio * kv
+        r2 = 1.0 - float(np.sum(resid**2) / np.sum((f - f.mean()) ** 2))
+        out["f_over_kv"] = ratio
+        out["f_over_kv_r2"] = r2
+        out["equivalent_restitution_e"] = (4 * ratio - 1) / (4 * ratio + 1)  # eq. 12 inverted
+        spreads = []
+        for k in sorted({c.kv for c in vib}):
+            fs = [c.frequency_hz for c in vib if c.kv == k]
+            if len(fs) >= 2:
+                spreads.append((max(fs) - min(fs)) / float(np.mean(fs)))
+        out["max_relative_spread_over_backlash"] = max(spreads) if spreads else None
+    return out
+
+
+def _plot(cells: list[Cell], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kvs = sorted({c.kv for c in cells})
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    k = np.linspace(min(kvs) * 0.9, max(kvs) * 1.1, 50)
+    ax.fill_between(k, k / 4, k, color="0.9", label="eq. 13 band $k_v/4..k_v$")
+    for delta in sorted({c.backlash_m for c in cells}):
+        pts = [(c.kv, c.frequency_hz) for c in cells if c.backlash_m == delta and c.frequency_hz]
+        if pts:
+            x, y = zip(*pts, strict=True)
+            ax.plot(x, y, "o-", label=f"δ = {delta * 1e3:g} mm")
+    ax.set_xlabel("$k_v$ [1/s]")
+    ax.set_ylabel("limit-cycle frequency [Hz]")
+    ax.legend(fontsize=8)
+    ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    axis = read_axis(args.axis).with_values({"friction.viscous": args.viscous})
+    backlash = tuple(d * 1e-3 for d in args.backlash_mm)
+    cells = sweep(axis, args.kv, backlash)
+    args.out.mkdir(parents=True, exist_ok=True)
+    with open(args.out / "sweep.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["kv_per_s", "backlash_m", "frequency_hz", "amplitude_m", "in_band"])
+        for c in cells:
+            w.writerow([c.kv, c.backlash_m, c.frequency_hz or "", c.amplitude_m, c.in_band])
+    v = verdicts(cells)
+    lines = [
+        "| k_v [1/s] | band [Hz] | " + " | ".join(f"δ={d:g} mm" for d in args.backlash_mm) + " |"
+    ]
+    lines.append("|---" * (2 + len(backlash)) + "|")
+    for kv in args.kv:
+        row = [f"{kv:g}", f"{kv / 4:g}..{kv:g}"]
+        for d in backlash:
+            c = next(c for c in cells if c.kv == kv and c.backlash_m == d)
+            row.append("none" if c.frequency_hz is None else f"{c.frequency_hz:.2f}")
+        lines.append("| " + " | ".join(row) + " |")
+    table = "\n".join(lines)
+    (args.out / "sweep.md").write_text(
+        table + "\n\n```json\n" + json.dumps(v, indent=2) + "\n```\n"
+    )
+    (args.out / "sweep.json").write_text(
+        json.dumps({"verdicts": v, "cells": [c.__dict__ for c in cells]}, indent=2)
+    )
+    _plot(cells, args.out / "sweep.png")
+    print(table)
+    print(json.dumps(v, indent=2))
+    return 0
