@@ -1,0 +1,131 @@
+"""Open the bus a :class:`BusConfig` asks for, deciding AUTO from what the host offers.
+
+AUTO picks SocketCAN when the kernel accepts a raw CAN socket *and* the configured channel
+(default ``vcan0``) is a virtual CAN interface; otherwise python-can's in-process ``virtual``
+interface. AUTO never picks a hardware CAN interface (that needs ``Interface.SOCKETCAN``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import can
+
+from virtual_bus.config import BusConfig, Interface
+from virtual_bus.errors import BusUnavailableError, Missing
+from virtual_bus.vcan import DEFAULT_VCAN_CHANNEL, HostProbe, LinkKind
+
+_SYSTEM_PROBE = HostProbe()
+
+
+@dataclass(frozen=True)
+class BusChoice:
+    """What :func:`open_bus` will open, and why.
+
+    interface: ``Interface.VIRTUAL``, ``Interface.SOCKETCAN`` or another python-can name
+        (never ``Interface.AUTO``). channel: the channel passed to python-can (``None`` only
+        for other interfaces without a configured channel). reason: one sentence.
+    """
+
+    interface: Interface | str
+    channel: str | None
+    reason: str
+
+    @property
+    def python_can_interface(self) -> str:
+        """The interface name python-can uses."""
+        return self.interface.value if isinstance(self.interface, Interface) else self.interface
+
+
+def _socketcan_or_error(config: BusConfig, probe: HostProbe) -> BusChoice:
+    channel = config.socketcan_channel
+    problem = probe.af_can_problem()
+    if problem is not None:
+        raise BusUnavailableError(
+            f"SocketCAN requested on {channel}, but {problem}",
+            missing=Missing.AF_CAN,
+            channel=channel,
+        )
+    kind = probe.link_kind(channel)
+    if kind is LinkKind.MISSING:
+        raise BusUnavailableError(
+            f"SocketCAN requested, but interface {channel} does not exist; "
+            f"create it with `python -m virtual_bus setup {channel}` (needs root)",
+            missing=Missing.INTERFACE,
+            channel=channel,
+        )
+    if kind is LinkKind.NOT_CAN:
+        raise BusUnavailableError(
+            f"SocketCAN requested, but {channel} is not a CAN interface "
+            "(/sys/class/net/<name>/type is not ARPHRD_CAN=280)",
+            missing=Missing.NOT_CAN,
+            channel=channel,
+        )
+    return BusChoice(
+        Interface.SOCKETCAN, channel, f"SocketCAN requested; {channel} is a {kind.value}"
+    )
+
+
+def _auto(config: BusConfig, probe: HostProbe) -> BusChoice:
+    channel = config.socketcan_channel
+    problem = probe.af_can_problem()
+    if problem is None:
+        kind = probe.link_kind(channel)
+        if kind is LinkKind.VCAN:
+            return BusChoice(
+                Interface.SOCKETCAN, channel, f"kernel has SocketCAN and {channel} is a vcan"
+            )
+        why = f"interface {channel} {kind.value}"
+        if kind is LinkKind.MISSING:
+            why += f" (create it with `python -m virtual_bus setup {channel}`)"
+        elif kind is LinkKind.CAN:
+            why += " (AUTO never uses hardware; ask for SOCKETCAN explicitly)"
+    else:
+        why = problem
+    return BusChoice(Interface.VIRTUAL, config.virtual_channel, f"no SocketCAN vcan: {why}")
+
+
+def resolve(config: BusConfig, probe: HostProbe = _SYSTEM_PROBE) -> BusChoice:
+    """Decide which bus ``config`` means on this host (raises ``BusUnavailableError`` for an
+    explicit SocketCAN request the host cannot serve). Opens nothing."""
+    if config.interface is Interface.AUTO:
+        return _auto(config, probe)
+    if config.interface is Interface.SOCKETCAN:
+        return _socketcan_or_error(config, probe)
+    if config.interface is Interface.VIRTUAL:
+        return BusChoice(Interface.VIRTUAL, config.virtual_channel, "virtual bus requested")
+    return BusChoice(config.interface, config.channel, f"{config.interface} requested")
+
+
+def open_bus(config: BusConfig, probe: HostProbe = _SYSTEM_PROBE) -> can.BusABC:
+    """Open the bus ``config`` asks for (see :func:`resolve`); the caller shuts it down.
+
+    python-can's config files and environment are *not* merged in here (``ignore_config``);
+    use :meth:`BusConfig.from_python_can_config` to honour them explicitly.
+    """
+    choice = resolve(config, probe)
+    if choice.interface is Interface.VIRTUAL or choice.interface is Interface.SOCKETCAN:
+        return can.Bus(
+            channel=choice.channel,
+            interface=choice.python_can_interface,
+            ignore_config=True,
+            receive_own_messages=config.receive_own_messages,
+        )
+    return can.Bus(
+        channel=choice.channel,
+        interface=choice.python_can_interface,
+        ignore_config=True,
+        receive_own_messages=config.receive_own_messages,
+        bitrate=config.bitrate,
+    )
+
+
+def available_modes(
+    probe: HostProbe = _SYSTEM_PROBE, channel: str = DEFAULT_VCAN_CHANNEL
+) -> tuple[Interface, ...]:
+    """The modes that work on this host: always ``VIRTUAL``; ``SOCKETCAN`` only when the kernel
+    has SocketCAN and ``channel`` (default ``vcan0``) is a vcan interface."""
+    auto = resolve(BusConfig(interface=Interface.AUTO, channel=channel), probe)
+    if auto.interface is Interface.SOCKETCAN:
+        return (Interface.VIRTUAL, Interface.SOCKETCAN)
+    return (Interface.VIRTUAL,)
