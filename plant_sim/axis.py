@@ -374,12 +374,12 @@ def axis_from_mapping(doc: Mapping[str, Any]) -> AxisConfig:
     if axis["kind"] not in kinds:
         raise _fail("axis.kind", axis["kind"], f"must be one of {kinds}")
     kind = AxisKind(axis["kind"])
+    parts = {name: _section_values(name, doc.get(name, {}), kind) for name in _SECTIONS}
     load_key = "load_mass" if kind is AxisKind.LINEAR else "load_inertia"
-    if load_key not in doc.get("mechanics", {}):
+    if "load_mass" not in parts["mechanics"]:
         raise AxisFileError(
             f"missing required key mechanics.{load_key}", key=f"mechanics.{load_key}"
         )
-    parts = {name: _section_values(name, doc.get(name, {}), kind) for name in _SECTIONS}
     return AxisConfig(
         kind=kind,
         transmission_ratio=_number("axis.transmission_ratio", axis["transmission_ratio"]),
