@@ -61,3 +61,15 @@ def test_limit_cycle_frequency_scales_with_kv_not_backlash(limit_cycle_axis: Axi
     f25 = freq(25.0, 1e-4)
     assert freq(50.0, 1e-4) / f25 == pytest.approx(2.0, rel=0.15)
     assert freq(25.0, 4e-4) == pytest.approx(f25, rel=0.15)
+
+
+@pytest.mark.parametrize("backlash", [0.0, None])
+def test_no_false_alarm_without_backlash(
+    limit_cycle_axis: AxisConfig, backlash: float | None
+) -> None:
+    """Section X without free play (speed step, 20 N·m disturbance on and off, stop): nothing
+    vibrates, so the detector must not fade the load sensor out: λ stays close to 1."""
+    axis = limit_cycle_axis.with_values({"mechanics.backlash": backlash})
+    trace = run_section_x(axis, with_regulator=True)
+    assert trace["lambda"].min() > 0.9
+    assert summarize(trace, axis).dominant_frequency_hz is None
