@@ -26,7 +26,7 @@ from regulator import BacklashRegulator, PositionController, RegulatorConfig
 
 from .axis import AxisConfig
 from .errors import ScenarioError
-from .simulate import References
+from .simulate import SIM_COLUMNS, References
 from .trace import Trace
 
 
@@ -138,19 +138,5 @@ def simulate_reference(
                 sol = solve_ivp(rhs, (t, t + tsc), y, args=(cmd, f_ext), rtol=rtol, atol=1e-12)
                 y, tau = sol.y[:, -1], cmd
             t += tsc
-    names = (
-        "time",
-        "position_reference",
-        "speed_setpoint",
-        "motor_position",
-        "motor_speed",
-        "load_position",
-        "motor_torque",
-        "disturbance",
-        "beta",
-        "lambda",
-        "omega_s",
-        "omega_c",
-    )
     data = np.array(rows)
-    return Trace({name: data[:, i] for i, name in enumerate(names)})
+    return Trace({name: data[:, i] for i, name in enumerate(SIM_COLUMNS)})

@@ -18,6 +18,24 @@ from .errors import ScenarioError
 from .model import KernelOptions, build_params, initial_state
 from .trace import Trace
 
+#: Columns of a simulated closed-loop trace, in the order of the kernel's ``O_*`` row layout:
+#: the trace-file columns, then β, λ, and the detector's inputs ω_s and ω_c (rad/s, motor).
+SIM_COLUMNS = (
+    "time",
+    "position_reference",
+    "speed_setpoint",
+    "motor_position",
+    "motor_speed",
+    "load_position",
+    "motor_torque",
+    "disturbance",
+    "beta",
+    "lambda",
+    "omega_s",
+    "omega_c",
+)
+assert len(SIM_COLUMNS) == K.N_OUT
+
 
 @dataclass(frozen=True)
 class References:
@@ -84,22 +102,7 @@ def simulate(
     reg_state = np.zeros(_detector_size(reg_cfg.n))
     out = np.empty((len(refs.position), K.N_OUT))
     K.run_closed_loop(p, st, reg_state, refs.position, refs.speed, refs.disturbance_nm, out)
-    return Trace(
-        {
-            "time": out[:, K.O_T],
-            "position_reference": out[:, K.O_XREF],
-            "speed_setpoint": out[:, K.O_WSET],
-            "motor_position": out[:, K.O_TH],
-            "motor_speed": out[:, K.O_WM],
-            "load_position": out[:, K.O_X],
-            "motor_torque": out[:, K.O_TAU],
-            "disturbance": out[:, K.O_DIST],
-            "beta": out[:, K.O_BETA],
-            "lambda": out[:, K.O_LAM],
-            "omega_s": out[:, K.O_WS],
-            "omega_c": out[:, K.O_WC],
-        }
-    )
+    return Trace({name: out[:, i] for i, name in enumerate(SIM_COLUMNS)})
 
 
 def _detector_size(n: int) -> int:
