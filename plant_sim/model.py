@@ -153,6 +153,17 @@ class AxisPlant:
         (0 N·m: power stage off, the axis coasts); clears the speed controller's integral."""
         K.advance_torque(self._p, self._st, float(torque_nm), float(disturbance_nm))
 
+    def set_torque_limit_nm(self, limit_nm: float) -> None:
+        """Change the drive's torque limit (the PI output clamp and its anti-windup), N·m;
+        ``math.inf`` for none. Raises ScenarioError for a negative or NaN value."""
+        if not limit_nm >= 0.0:
+            raise ScenarioError(f"torque limit {limit_nm} N·m: must be >= 0 (inf for none)")
+        self._p[K.P_TAU_LIM] = float(limit_nm)
+
+    @property
+    def torque_limit_nm(self) -> float:
+        return float(self._p[K.P_TAU_LIM])
+
     @property
     def time_s(self) -> float:
         return float(self._st[K.S_T])

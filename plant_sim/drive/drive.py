@@ -1,0 +1,410 @@
+"""The simulated CiA 402 servo drive: a CANopen slave that runs an :class:`AxisPlant`.
+
+The plant is the axis physics plus the drive's own loops (PI speed controller, current loop;
+the paper's Fig. 1 below the position controller, section V). The drive adds what a real
+servo drive in cyclic synchronous velocity mode (6060h = 9) adds around it: NMT, heartbeat,
+EMCY, the CiA 402 state machine, the PDO exchange on SYNC and its protections.
+
+Per SYNC k (``docs/canopen_layout.md``; lockstep and real time alike):
+
+1. latch: the RPDOs received before SYNC k are written to their objects (controlword ->
+   state machine, 60FFh -> speed set point); then the supervision (set point watchdog,
+   encoder discrepancy, end of a quick stop / fault reaction ramp) acts;
+2. the TPDOs go out with the values sampled now (t_k);
+3. the physics runs one position cycle: Operation enabled -> speed loop at 60FFh; Quick stop
+   active / Fault reaction active -> speed loop on a ramp to zero; every other state ->
+   ``advance_torque(0)`` (power stage off, the axis coasts).
+
+So a set point computed from the measurements of SYNC k acts from SYNC k+1 on: the one-cycle
+PDO delay of ``KernelOptions(setpoint_delay_cycles=1)``. The drive has no clock of its own:
+time is the number of SYNCs times the position cycle. In ``TimeMode.LOCKSTEP`` the heartbeat
+follows that simulated time too; in ``TimeMode.REAL_TIME`` (SYNC from a wall clock elsewhere)
+it is sent by python-can's periodic task on the wall clock.
+
+SDO writes act at once (e.g. a controlword written by SDO changes the state immediately);
+only RPDO contents wait for the next SYNC.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Callable
+from types import TracebackType
+
+import can
+import canopen
+
+from plant_sim.axis import AxisConfig
+from plant_sim.model import AxisPlant
+
+from . import od as O
+from .cia402 import State402
+from .config import DriveConfig, TimeMode
+from .errors import (
+    ABORT_READ_ONLY,
+    ABORT_VALUE_RANGE,
+    DriveConfigError,
+    DriveInputError,
+    DriveSdoAbort,
+    DriveStateError,
+)
+from .node import DriveNmt, DriveNode, NmtCommand, NmtState, SimulatedHeartbeat, WallClockHeartbeat
+from .pdo import PdoEngine
+from .protection import EMCY_PDO_LENGTH, EMCY_SYNC_LENGTH, ErrorList, emcy_data_int32
+from .servo import ServoAxis
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["DriveConfig", "SimulatedDrive", "TimeMode"]
+
+
+class SimulatedDrive:
+    """A CiA 402 servo drive (cyclic synchronous velocity) on a CANopen bus.
+
+    network_or_bus: a connected :class:`canopen.Network` (the drive adds its node to it), or
+        a python-can bus (the drive makes a Network and runs its notifier thread; the bus
+        stays the caller's and is not shut down).
+    node_id: 1..127 (the contract's default is 2).
+    axis: the axis the plant simulates; plant: an existing plant of that axis (default: a new
+        :class:`AxisPlant` at rest at position 0).
+
+    Use :meth:`start` / :meth:`stop` or ``with SimulatedDrive(...) as drive:``.
+    """
+
+    def __init__(
+        self,
+        network_or_bus: canopen.Network | can.BusABC,
+        node_id: int,
+        axis: AxisConfig,
+        config: DriveConfig | None = None,
+        plant: AxisPlant | None = None,
+    ) -> None:
+        if not isinstance(node_id, int) or not 1 <= node_id <= 127:
+            raise DriveConfigError(f"node_id = {node_id!r}: allowed 1..127")
+        if plant is not None and plant.axis != axis:
+            raise DriveConfigError("plant was built for another axis than the one given")
+        self.config = config or DriveConfig()
+        self.axis = axis
+        self.node_id = node_id
+        self._lock = threading.RLock()
+        if isinstance(network_or_bus, canopen.Network):
+            self._network = network_or_bus
+            self._own_network = False
+        elif isinstance(network_or_bus, can.BusABC):
+            self._network = canopen.Network(network_or_bus)
+            self._own_network = True
+        else:
+            raise DriveConfigError(
+                f"network_or_bus is a {type(network_or_bus).__name__}; "
+                "give a canopen.Network or a can.BusABC"
+            )
+        self._plant = plant if plant is not None else AxisPlant(axis)
+        self._cycle_us = round(axis.control.position_cycle * 1e6)
+        self._callback_errors: list[BaseException] = []
+        self._started = False
+        self._sync_count = 0
+        self._sync_cob_id = 0
+        self._rpdo_seen = False
+
+        od = O.load_drive_od(self.config.eds_path, node_id)
+        self._table = O.ObjectTable(od)
+        self._errors = ErrorList(self._send_emcy)
+        self._servo = ServoAxis(axis, self._plant, self._table, self._errors, self.config)
+        self._nmt = DriveNmt(
+            node_id, lock=self._lock, on_reset=self._nmt_reset, on_state=self._nmt_state
+        )
+        self._node = DriveNode(node_id, od, nmt=self._nmt, lock=self._lock)
+        self._node.add_read_callback(self._table.sdo_read)
+        self._node.add_write_callback(self._table.sdo_write)
+        if self.config.time_mode is TimeMode.LOCKSTEP:
+            self._heartbeat: SimulatedHeartbeat | WallClockHeartbeat = SimulatedHeartbeat(
+                self._send, node_id
+            )
+        else:
+            self._heartbeat = WallClockHeartbeat(lambda: self._network.bus, node_id)
+        self._pdo = PdoEngine(
+            self._table,
+            send=self._send,
+            subscriber=self._network,
+            on_frame=self._guarded(self._on_rpdo_frame),
+        )
+        self._on_sync_frame_cb = self._guarded(self._on_sync_frame)
+        self._table.on(O.SYNC_CYCLES, read=lambda: self._sync_count & 0xFFFFFFFF)
+        self._table.on(
+            O.COB_ID_SYNC, validate=self._check_sync_cob_id, changed=self._sync_cob_id_changed
+        )
+        self._table.on(O.HEARTBEAT_TIME, changed=self._heartbeat_time_changed)
+
+    # ------------------------------------------------------------------------------------------
+    # set-up
+    # ------------------------------------------------------------------------------------------
+    def _guarded(
+        self, callback: Callable[[int, bytearray, float], None]
+    ) -> Callable[[int, bytearray, float], None]:
+        """Network callback that records exceptions (canopen only logs them); see check()."""
+
+        def run(can_id: int, data: bytearray, timestamp: float) -> None:
+            try:
+                callback(can_id, data, timestamp)
+            except Exception as exc:
+                logger.exception("drive %d: callback for 0x%03X failed", self.node_id, can_id)
+                self._callback_errors.append(exc)
+
+        return run
+
+    # ------------------------------------------------------------------------------------------
+    # lifecycle
+    # ------------------------------------------------------------------------------------------
+    def start(self) -> SimulatedDrive:
+        """Join the bus, finish initialisation (CiA 402 transition 1), send the boot-up
+        message and enter NMT Pre-operational with the heartbeat running."""
+        with self._lock:
+            if self._started:
+                raise DriveStateError(f"drive {self.node_id} is already started")
+            if self.node_id in self._network:
+                raise DriveStateError(f"node {self.node_id} is already on this network")
+            if not self._own_network and self._network.bus is None:
+                raise DriveStateError("the canopen Network is not connected (no bus)")
+            self._network[self.node_id] = self._node
+            self._subscribe_sync()
+            self._pdo.refresh_subscriptions()
+            self._started = True
+            self._servo.initialised()
+        if self._own_network:
+            bus = self._network.bus
+            assert bus is not None
+            self._network.notifier = can.Notifier(
+                bus, self._network.listeners, self.config.notifier_timeout_s
+            )
+        self._nmt.boot()
+        return self
+
+    def stop(self) -> None:
+        """Leave the bus: heartbeat, subscriptions and (own) notifier thread stop. The bus
+        itself is not shut down. Idempotent."""
+        if not self._started:
+            return
+        if self._own_network and self._network.notifier is not None:
+            self._network.notifier.stop(timeout=5.0)
+            self._network.notifier = None
+        with self._lock:
+            self._heartbeat.stop()
+            self._unsubscribe_sync()
+            self._pdo.unsubscribe_all()
+            del self._network[self.node_id]
+            self._started = False
+
+    def __enter__(self) -> SimulatedDrive:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    def check(self) -> None:
+        """Raise the first exception a bus callback of the drive hit (canopen only logs)."""
+        if self._callback_errors:
+            raise self._callback_errors[0]
+
+    # ------------------------------------------------------------------------------------------
+    # harness API
+    # ------------------------------------------------------------------------------------------
+    @property
+    def plant(self) -> AxisPlant:
+        """The simulated axis (read it; stepping it behind the drive's back breaks lockstep)."""
+        return self._plant
+
+    @property
+    def node(self) -> DriveNode:
+        return self._node
+
+    @property
+    def network(self) -> canopen.Network:
+        return self._network
+
+    @property
+    def state(self) -> State402:
+        with self._lock:
+            return self._servo.state
+
+    @property
+    def nmt_state(self) -> NmtState:
+        with self._lock:
+            return self._nmt.state
+
+    @property
+    def statusword(self) -> int:
+        with self._lock:
+            return self._servo.statusword()
+
+    @property
+    def error_code(self) -> int:
+        with self._lock:
+            return self._errors.error_code
+
+    @property
+    def error_register(self) -> int:
+        with self._lock:
+            return self._errors.register
+
+    @property
+    def active_errors(self) -> tuple[int, ...]:
+        with self._lock:
+            return self._errors.active
+
+    @property
+    def sync_count(self) -> int:
+        """SYNCs (position cycles) run since the drive was built; reading it waits for a
+        SYNC cycle in progress to finish."""
+        with self._lock:
+            return self._sync_count
+
+    @property
+    def time_s(self) -> float:
+        with self._lock:
+            return self._plant.time_s
+
+    @property
+    def disturbance_nm(self) -> float:
+        with self._lock:
+            return self._table.value(O.DISTURBANCE) / 1000.0
+
+    @property
+    def torque_limit_nm(self) -> float:
+        """The torque limit in force: min(axis file limit, 6072h · 6076h)."""
+        with self._lock:
+            return self._servo.torque_limit_nm
+
+    def set_disturbance_nm(self, torque_nm: float) -> None:
+        """External load disturbance (N·m at the motor, positive pushes the load towards +x;
+        the paper's section X step). Held in 2100h as mN·m (rounded), from the next cycle."""
+        if not math.isfinite(torque_nm):
+            raise DriveInputError(f"disturbance {torque_nm} N·m: must be finite")
+        value = round(torque_nm * 1000)
+        if not O.INT32_MIN <= value <= O.INT32_MAX:
+            raise DriveInputError(
+                f"disturbance {torque_nm} N·m: allowed ±{O.INT32_MAX / 1000:.0f} N·m (2100h)"
+            )
+        with self._lock:
+            self._table.write(O.DISTURBANCE, value)
+
+    def read_object(self, index: int, subindex: int = 0) -> int:
+        """Current value of an integer object, as an SDO upload would give it."""
+        with self._lock:
+            return self._table.read((index, subindex))
+
+    def write_object(self, index: int, subindex: int, value: int) -> None:
+        """Write an integer object with the SDO rules (raises DriveSdoAbort)."""
+        with self._lock:
+            key = (index, subindex)
+            if key not in self._table or not self._table.variable(key).writable:
+                raise DriveSdoAbort(ABORT_READ_ONLY, "object is not writable", key=key)
+            self._table.write(key, value)
+
+    # ------------------------------------------------------------------------------------------
+    # SYNC cycle
+    # ------------------------------------------------------------------------------------------
+    def on_sync(self) -> None:
+        """One SYNC: latch RPDOs, supervise, send TPDOs, run the physics one position cycle
+        (what the drive does on a SYNC frame; callable directly in unit tests)."""
+        with self._lock:
+            operational = self._nmt.state is NmtState.OPERATIONAL
+            self._rpdo_seen = False
+            if operational:
+                result = self._pdo.latch(before_apply=self._rpdo_arrived)
+                if result.short_frames:
+                    self._errors.set(EMCY_PDO_LENGTH, emcy_data_int32(result.short_frames[0]))
+            self._servo.supervise(self._rpdo_seen)
+            if operational:
+                self._pdo.transmit()
+            self._servo.advance()
+            self._sync_count += 1
+            self._heartbeat.tick(self._sync_count * self._cycle_us)
+
+    def _rpdo_arrived(self) -> None:
+        self._rpdo_seen = True
+        self._servo.rpdo_arrived()
+
+    # ------------------------------------------------------------------------------------------
+    # bus glue
+    # ------------------------------------------------------------------------------------------
+    def _check_sync_cob_id(self, value: int) -> None:
+        if value & 0x7FFFF800:
+            raise DriveSdoAbort(
+                ABORT_VALUE_RANGE,
+                f"COB-ID SYNC 0x{value:08X}: the drive only consumes SYNC (bit 30 = 0) on an "
+                "11-bit CAN id (bits 11..29 = 0)",
+                key=O.COB_ID_SYNC,
+            )
+        if value & 0x7FF == 0:
+            raise DriveSdoAbort(
+                ABORT_VALUE_RANGE, "COB-ID SYNC: CAN id 0 is the NMT service", key=O.COB_ID_SYNC
+            )
+
+    def _send(self, can_id: int, data: bytes) -> None:
+        self._network.send_message(can_id, data)
+
+    def _send_emcy(self, code: int, register: int, data: bytes) -> None:
+        if self._started and self._nmt.state in (NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL):
+            self._node.emcy.send(code, register, data)
+
+    def _subscribe_sync(self) -> None:
+        self._sync_cob_id = self._table.value(O.COB_ID_SYNC) & 0x7FF
+        self._network.subscribe(self._sync_cob_id, self._on_sync_frame_cb)
+
+    def _unsubscribe_sync(self) -> None:
+        self._network.unsubscribe(self._sync_cob_id, self._on_sync_frame_cb)
+
+    def _sync_cob_id_changed(self, _value: int) -> None:
+        if self._started:
+            self._unsubscribe_sync()
+            self._subscribe_sync()
+
+    def _heartbeat_time_changed(self, period_ms: int) -> None:
+        if self._started and self._nmt.state is not NmtState.INITIALISING:
+            now_us = self._sync_count * self._cycle_us
+            self._heartbeat.start(period_ms, self._nmt.state, now_us)
+
+    def _on_sync_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._lock:
+            if len(data) > 1:  # CiA 301: SYNC carries no data or the 1-byte counter
+                logger.warning("SYNC with %d data bytes ignored (allowed 0 or 1)", len(data))
+                self._errors.set(EMCY_SYNC_LENGTH, emcy_data_int32(len(data)))
+                return
+            self._errors.clear(EMCY_SYNC_LENGTH)
+            self.on_sync()
+
+    def _on_rpdo_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._lock:
+            if self._nmt.state is NmtState.OPERATIONAL:
+                self._pdo.receive(can_id, bytes(data))
+
+    def _nmt_state(self, old: NmtState, new: NmtState) -> None:
+        if new is NmtState.INITIALISING:
+            self._heartbeat.stop()
+        elif old is NmtState.INITIALISING:
+            now_us = self._sync_count * self._cycle_us
+            self._heartbeat.start(self._table.value(O.HEARTBEAT_TIME), new, now_us)
+        else:
+            self._heartbeat.set_state(new)
+        if old is NmtState.OPERATIONAL:
+            self._pdo.clear_pending()
+
+    def _nmt_reset(self, command: NmtCommand) -> None:
+        """NMT reset node: application (2000h-9FFFh but the 2100h simulation input) and
+        communication parameters to their defaults, errors forgotten, CiA 402 transitions
+        0 and 1; reset communication: 1000h-1FFFh only."""
+        if command is NmtCommand.RESET_NODE:
+            self._table.restore_defaults(0x2000, 0x9FFF, keep=(O.DISTURBANCE,))
+            self._servo.reset_application()
+        self._table.restore_defaults(0x1000, 0x1FFF)
+        if self._started:
+            self._unsubscribe_sync()
+            self._subscribe_sync()
+            self._pdo.reset()

@@ -1,0 +1,242 @@
+"""The drive's CANopen node: canopen's LocalNode with its own NMT slave, heartbeat producers
+for both time modes and an SDO server that is silent in NMT Stopped.
+
+What canopen's LocalNode / NmtSlave lack and this module adds:
+
+- after an NMT reset node / reset communication the slave sends its boot-up message and
+  enters Pre-operational by itself (CiA 301 figure 48); NmtSlave stays in Initialising;
+- the reset hooks (application / communication parameters back to their defaults);
+- a heartbeat clocked by the simulated time (lockstep: one position cycle per SYNC), since
+  NmtSlave's heartbeat always runs on the wall clock in a python-can thread;
+- no SDO service in Stopped (CiA 301 table 46).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from enum import IntEnum
+from typing import Protocol
+
+import can
+import canopen.network
+from canopen import LocalNode
+from canopen.objectdictionary import ObjectDictionary
+from canopen.sdo import SdoServer
+
+logger = logging.getLogger(__name__)
+
+NMT_COB_ID = 0x000
+HEARTBEAT_BASE = 0x700
+
+
+class NmtState(IntEnum):
+    """NMT states with their heartbeat codes (CiA 301 table 48)."""
+
+    INITIALISING = 0  # boot-up
+    STOPPED = 4
+    OPERATIONAL = 5
+    PRE_OPERATIONAL = 127
+
+
+class NmtCommand(IntEnum):
+    """NMT command specifiers (CiA 301 7.2.8.3.1)."""
+
+    START = 0x01
+    STOP = 0x02
+    ENTER_PRE_OPERATIONAL = 0x80
+    RESET_NODE = 0x81
+    RESET_COMMUNICATION = 0x82
+
+
+_TARGET = {
+    NmtCommand.START: NmtState.OPERATIONAL,
+    NmtCommand.STOP: NmtState.STOPPED,
+    NmtCommand.ENTER_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
+}
+
+
+class HeartbeatProducer(Protocol):
+    """Sends the heartbeat (0x700 + node id, one byte: the NMT state)."""
+
+    def start(self, period_ms: int, state: NmtState, now_us: int) -> None: ...
+
+    def set_state(self, state: NmtState) -> None: ...
+
+    def tick(self, now_us: int) -> None: ...
+
+    def stop(self) -> None: ...
+
+
+class SimulatedHeartbeat:
+    """Heartbeat on the simulated time (lockstep): :meth:`tick` with the time after each
+    position cycle sends one frame whenever a multiple of the period has passed."""
+
+    def __init__(self, send: Callable[[int, bytes], None], node_id: int) -> None:
+        self._send = send
+        self._can_id = HEARTBEAT_BASE + node_id
+        self._period_us = 0
+        self._due_us = 0
+        self._state = NmtState.INITIALISING
+
+    def start(self, period_ms: int, state: NmtState, now_us: int) -> None:
+        self._period_us = 1000 * period_ms
+        self._due_us = now_us + self._period_us
+        self._state = state
+
+    def set_state(self, state: NmtState) -> None:
+        self._state = state
+
+    def tick(self, now_us: int) -> None:
+        if self._period_us <= 0 or now_us < self._due_us:
+            return
+        while self._due_us <= now_us:
+            self._due_us += self._period_us
+        self._send(self._can_id, bytes([self._state]))
+
+    def stop(self) -> None:
+        self._period_us = 0
+
+
+class WallClockHeartbeat:
+    """Heartbeat on the wall clock (real time): python-can's periodic send task."""
+
+    def __init__(self, bus: Callable[[], can.BusABC], node_id: int) -> None:
+        self._bus = bus
+        self._can_id = HEARTBEAT_BASE + node_id
+        self._task: can.broadcastmanager.CyclicSendTaskABC | None = None
+        self._message: can.Message | None = None
+
+    def start(self, period_ms: int, state: NmtState, now_us: int) -> None:
+        self.stop()
+        if period_ms <= 0:
+            return
+        self._message = can.Message(
+            arbitration_id=self._can_id, data=bytes([state]), is_extended_id=False
+        )
+        self._task = self._bus().send_periodic(self._message, period_ms / 1000.0)
+
+    def set_state(self, state: NmtState) -> None:
+        if self._task is not None and self._message is not None:
+            self._message = can.Message(
+                arbitration_id=self._can_id, data=bytes([state]), is_extended_id=False
+            )
+            if isinstance(self._task, can.broadcastmanager.ModifiableCyclicTaskABC):
+                self._task.modify_data(self._message)
+
+    def tick(self, now_us: int) -> None:
+        pass
+
+    def stop(self) -> None:
+        if self._task is None:
+            return
+        self._task.stop()
+        thread = getattr(self._task, "thread", None)  # python-can's thread-based task
+        if isinstance(thread, threading.Thread) and thread is not threading.current_thread():
+            thread.join(timeout=2.0)
+        self._task = None
+
+
+class DriveNmt:
+    """NMT slave of the drive (replaces canopen's NmtSlave on the LocalNode).
+
+    on_reset(command): called in Initialising for RESET_NODE / RESET_COMMUNICATION, before
+    the boot-up message. on_state(old, new): after every state change.
+    """
+
+    def __init__(
+        self,
+        node_id: int,
+        *,
+        lock: threading.RLock,
+        on_reset: Callable[[NmtCommand], None],
+        on_state: Callable[[NmtState, NmtState], None],
+    ) -> None:
+        self.id = node_id
+        self.network: canopen.network.Network = canopen.network._UNINITIALIZED_NETWORK
+        self._lock = lock
+        self._on_reset = on_reset
+        self._on_state = on_state
+        self.state = NmtState.INITIALISING
+
+    def _set(self, new: NmtState) -> None:
+        old, self.state = self.state, new
+        if old is not new:
+            self._on_state(old, new)
+
+    def boot(self) -> None:
+        """Send the boot-up message and enter Pre-operational."""
+        with self._lock:
+            self._set(NmtState.INITIALISING)
+            self.network.send_message(HEARTBEAT_BASE + self.id, b"\x00")
+            self._set(NmtState.PRE_OPERATIONAL)
+
+    def execute(self, command: NmtCommand) -> None:
+        with self._lock:
+            if command in (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION):
+                self._set(NmtState.INITIALISING)
+                self._on_reset(command)
+                self.boot()
+            else:
+                self._set(_TARGET[command])
+
+    def on_command(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """Network callback for COB-ID 0: two bytes, command specifier and node id (0: all)."""
+        if len(data) != 2:
+            logger.warning("NMT frame with %d data bytes ignored (needs 2)", len(data))
+            return
+        specifier, node_id = data[0], data[1]
+        if node_id not in (0, self.id):
+            return
+        try:
+            command = NmtCommand(specifier)
+        except ValueError:
+            allowed = ", ".join(f"0x{c:02X}" for c in NmtCommand)
+            logger.warning("NMT command 0x%02X ignored; allowed %s", specifier, allowed)
+            return
+        self.execute(command)
+
+
+class _GatedSdoServer(SdoServer):
+    """canopen's SDO server, silent while ``blocked()`` (NMT Stopped), serialised by ``lock``."""
+
+    def __init__(
+        self,
+        node: LocalNode,
+        *,
+        lock: threading.RLock,
+        blocked: Callable[[], bool],
+    ) -> None:
+        super().__init__(0x600 + node.id, 0x580 + node.id, node)
+        self._lock = lock
+        self._blocked = blocked
+
+    def on_request(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._lock:
+            if self._blocked():
+                return
+            super().on_request(can_id, data, timestamp)
+
+
+class DriveNode(LocalNode):
+    """LocalNode with :class:`DriveNmt` and the gated SDO server.
+
+    Must be built before it joins a network: ``LocalNode.associate_network`` subscribes
+    ``self.sdo.on_request`` and ``self.nmt.on_command``.
+    """
+
+    def __init__(
+        self,
+        node_id: int,
+        od: ObjectDictionary,
+        *,
+        nmt: DriveNmt,
+        lock: threading.RLock,
+    ) -> None:
+        super().__init__(node_id, od)
+        # LocalNode registered its NmtSlave's heartbeat writer for 1017h; the drive handles
+        # 1017h itself (time-mode dependent heartbeat), so drop it with the NmtSlave.
+        self._write_callbacks.remove(self.nmt.on_write)
+        self.nmt = nmt  # type: ignore[assignment]
+        self.sdo = _GatedSdoServer(self, lock=lock, blocked=lambda: nmt.state is NmtState.STOPPED)

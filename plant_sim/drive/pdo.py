@@ -1,0 +1,416 @@
+"""PDOs of the simulated drive: TPDOs sent on SYNC, RPDOs latched at the next SYNC, and the
+CiA 301 rules for configuring them over SDO (1400h-1403h, 1600h-1603h, 1800h-1803h,
+1A00h-1A03h).
+
+canopen's LocalNode neither sends TPDOs on SYNC nor applies received RPDOs to its object
+dictionary, so this module does both on top of :class:`plant_sim.drive.od.ObjectTable`.
+
+Configuration rules (CiA 301, 7.5.2.35-7.5.2.38; abort codes as CANopenNode / Lely use them):
+
+- COB-ID (sub 1): bit 31 = 1 makes the PDO invalid ("does not exist"); bits 0..10 are the
+  CAN id, bit 29 (29-bit id) and bits 11..28 must be 0; while the PDO is valid its CAN id can
+  not change (abort 0609 0030) - write it together with bit 31 = 1 first. A valid PDO may not
+  use a restricted COB-ID (CiA 301 table 7.3) or the CAN id of another valid RPDO.
+- transmission type (sub 2): TPDO 0 (acyclic synchronous: on SYNC when the data changed) or
+  1..240 (every n-th SYNC); RPDO 0..240, 254, 255 - an RPDO's contents always take effect at
+  the next SYNC, since the drive's control cycle is the SYNC (docs/canopen_layout.md).
+  Other values abort 0609 0030.
+- mapping (1600h/1A00h): entries can only be written while the PDO is invalid and sub 0 is 0
+  (abort 0609 0030); an entry must name an existing (0602 0000), PDO-mappable object that an
+  RPDO can write / a TPDO can read, with its full bit length (0604 0041); writing sub 0 = n
+  checks entries 1..n and their total length <= 64 bits (0604 0042). Writing a value equal to
+  the present one is always accepted (nothing changes).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Protocol
+
+from .errors import (
+    ABORT_NO_OBJECT,
+    ABORT_NOT_MAPPABLE,
+    ABORT_PDO_LENGTH,
+    ABORT_VALUE_RANGE,
+    DriveSdoAbort,
+)
+from .od import (
+    PDO_CHANNELS,
+    PDO_MAP_ENTRIES,
+    RPDO_COMM,
+    RPDO_MAP,
+    TPDO_COMM,
+    TPDO_MAP,
+    ObjectKey,
+    ObjectTable,
+)
+
+logger = logging.getLogger(__name__)
+
+COB_ID_INVALID = 1 << 31
+COB_ID_NO_RTR = 1 << 30
+COB_ID_EXTENDED = 1 << 29
+CAN_ID_MASK = 0x7FF
+MAX_PDO_BITS = 64
+
+FrameCallback = Callable[[int, bytearray, float], None]
+
+
+class Subscriber(Protocol):
+    """What the engine needs of :class:`canopen.Network` to receive RPDO frames."""
+
+    def subscribe(self, can_id: int, callback: FrameCallback) -> None: ...
+
+    def unsubscribe(self, can_id: int, callback: FrameCallback | None = None) -> None: ...
+
+
+class PdoKind(Enum):
+    RECEIVE = "RPDO"
+    TRANSMIT = "TPDO"
+
+
+def restricted_cob_id(can_id: int) -> bool:
+    """CiA 301 restricted COB-IDs (NMT, SYNC/EMCY, TIME, SDO, NMT error control, LSS)."""
+    return (
+        can_id <= 0x07F
+        or 0x101 <= can_id <= 0x180
+        or 0x581 <= can_id <= 0x5FF
+        or 0x601 <= can_id <= 0x67F
+        or 0x6E0 <= can_id <= 0x6FF
+        or 0x701 <= can_id <= 0x7FF
+    )
+
+
+@dataclass(frozen=True)
+class MappedObject:
+    """One mapping entry: object key and length in bits."""
+
+    key: ObjectKey
+    bits: int
+
+    @staticmethod
+    def decode(entry: int) -> MappedObject:
+        return MappedObject((entry >> 16, (entry >> 8) & 0xFF), entry & 0xFF)
+
+
+@dataclass
+class LatchResult:
+    """What :meth:`PdoEngine.latch` did at one SYNC."""
+
+    applied: int = 0  # RPDOs whose contents were written to the objects
+    short_frames: list[int] = field(default_factory=list)  # CAN ids of too short RPDOs
+
+
+@dataclass
+class _Channel:
+    kind: PdoKind
+    number: int  # 1..4
+    sync_count: int = 0  # TPDO: SYNCs since the last transmission
+    last_sent: bytes | None = None  # TPDO type 0: data of the last transmission
+
+    @property
+    def comm(self) -> int:
+        base = RPDO_COMM if self.kind is PdoKind.RECEIVE else TPDO_COMM
+        return base + self.number - 1
+
+    @property
+    def map(self) -> int:
+        base = RPDO_MAP if self.kind is PdoKind.RECEIVE else TPDO_MAP
+        return base + self.number - 1
+
+    @property
+    def name(self) -> str:
+        return f"{self.kind.value}{self.number}"
+
+
+class PdoEngine:
+    """The 4 RPDOs and 4 TPDOs of the drive.
+
+    table: the object table holding the PDO parameters and the mapped objects.
+    send: sends one CAN frame (can_id, data).
+    subscriber: where RPDO CAN ids are subscribed with ``on_frame`` (a canopen Network).
+    """
+
+    def __init__(
+        self,
+        table: ObjectTable,
+        *,
+        send: Callable[[int, bytes], None],
+        subscriber: Subscriber,
+        on_frame: FrameCallback,
+    ) -> None:
+        self._table = table
+        self._send = send
+        self._subscriber = subscriber
+        self._on_frame = on_frame
+        self._rx = [_Channel(PdoKind.RECEIVE, n + 1) for n in range(PDO_CHANNELS)]
+        self._tx = [_Channel(PdoKind.TRANSMIT, n + 1) for n in range(PDO_CHANNELS)]
+        self._subscribed: dict[int, _Channel] = {}
+        self._pending: dict[int, bytes] = {}  # RPDO number -> data received since last SYNC
+        for ch in self._rx + self._tx:
+            table.on((ch.comm, 1), validate=self._cob_id_validator(ch), changed=self._changed(ch))
+            table.on((ch.comm, 2), validate=self._type_validator(ch), changed=self._changed(ch))
+            table.on((ch.map, 0), validate=self._count_validator(ch), changed=self._changed(ch))
+            for sub in range(1, PDO_MAP_ENTRIES + 1):
+                table.on((ch.map, sub), validate=self._entry_validator(ch, sub))
+
+    # --- configuration view ----------------------------------------------------------------
+    def cob_id(self, ch: _Channel) -> int:
+        return self._table.value((ch.comm, 1))
+
+    def is_valid(self, ch: _Channel) -> bool:
+        return not self.cob_id(ch) & COB_ID_INVALID
+
+    def can_id(self, ch: _Channel) -> int:
+        return self.cob_id(ch) & CAN_ID_MASK
+
+    def mapping(self, ch: _Channel) -> list[MappedObject]:
+        count = self._table.value((ch.map, 0))
+        return [MappedObject.decode(self._table.value((ch.map, s))) for s in range(1, count + 1)]
+
+    def channel(self, kind: PdoKind, number: int) -> _Channel:
+        return (self._rx if kind is PdoKind.RECEIVE else self._tx)[number - 1]
+
+    # --- validators ----------------------------------------------------------------------------
+    def _abort(self, code: int, ch: _Channel, key: ObjectKey, message: str) -> DriveSdoAbort:
+        return DriveSdoAbort(code, f"{ch.name}: {message}", key=key)
+
+    def _cob_id_validator(self, ch: _Channel) -> Callable[[int], None]:
+        key = (ch.comm, 1)
+
+        def validate(new: int) -> None:
+            old = self.cob_id(ch)
+            if new == old:
+                return
+            if new & COB_ID_EXTENDED or new & 0x1FFFF800:
+                raise self._abort(
+                    ABORT_VALUE_RANGE,
+                    ch,
+                    key,
+                    f"COB-ID 0x{new:08X}: only 11-bit CAN ids (bits 11..29 = 0) are supported",
+                )
+            if new & COB_ID_INVALID:
+                return
+            can_id = new & CAN_ID_MASK
+            if not old & COB_ID_INVALID and can_id != old & CAN_ID_MASK:
+                raise self._abort(
+                    ABORT_VALUE_RANGE,
+                    ch,
+                    key,
+                    f"COB-ID 0x{new:08X}: the CAN id of a valid PDO cannot change; "
+                    "write it with bit 31 = 1 (PDO invalid) first",
+                )
+            if restricted_cob_id(can_id):
+                raise self._abort(
+                    ABORT_VALUE_RANGE, ch, key, f"CAN id 0x{can_id:03X} is a restricted COB-ID"
+                )
+            if ch.kind is PdoKind.RECEIVE:
+                for other in self._rx:
+                    if other is not ch and self.is_valid(other) and self.can_id(other) == can_id:
+                        raise self._abort(
+                            ABORT_VALUE_RANGE,
+                            ch,
+                            key,
+                            f"CAN id 0x{can_id:03X} is already used by {other.name}",
+                        )
+
+        return validate
+
+    def _type_validator(self, ch: _Channel) -> Callable[[int], None]:
+        key = (ch.comm, 2)
+        allowed = "0..240" if ch.kind is PdoKind.TRANSMIT else "0..240, 254, 255"
+
+        def validate(new: int) -> None:
+            ok = new <= 240 or (ch.kind is PdoKind.RECEIVE and new in (254, 255))
+            if not ok:
+                raise self._abort(
+                    ABORT_VALUE_RANGE,
+                    ch,
+                    key,
+                    f"transmission type {new} is not supported; allowed {allowed}",
+                )
+
+        return validate
+
+    def _check_mappable(self, ch: _Channel, key: ObjectKey, entry: int, sub: int) -> int:
+        """Bits of a valid mapping entry (raises DriveSdoAbort otherwise)."""
+        obj = MappedObject.decode(entry)
+        where = f"mapping entry {sub} = 0x{entry:08X}"
+        if obj.key not in self._table:
+            raise self._abort(
+                ABORT_NO_OBJECT,
+                ch,
+                key,
+                f"{where}: {obj.key[0]:04X}h:{obj.key[1]:02X} does not exist",
+            )
+        var = self._table.variable(obj.key)
+        usable = var.writable if ch.kind is PdoKind.RECEIVE else var.readable
+        if not var.pdo_mappable or not usable:
+            what = "written by an RPDO" if ch.kind is PdoKind.RECEIVE else "sent by a TPDO"
+            raise self._abort(ABORT_NOT_MAPPABLE, ch, key, f"{where}: {var.name} cannot be {what}")
+        if obj.bits != len(var):
+            raise self._abort(
+                ABORT_NOT_MAPPABLE,
+                ch,
+                key,
+                f"{where}: {var.name} is {len(var)} bits, only whole objects can be mapped",
+            )
+        return obj.bits
+
+    def _entry_validator(self, ch: _Channel, sub: int) -> Callable[[int], None]:
+        key = (ch.map, sub)
+
+        def validate(new: int) -> None:
+            if new == self._table.value(key):
+                return
+            if self.is_valid(ch) or self._table.value((ch.map, 0)) != 0:
+                raise self._abort(
+                    ABORT_VALUE_RANGE,
+                    ch,
+                    key,
+                    f"mapping can change only while the PDO is invalid ({ch.comm:04X}h:01 bit 31"
+                    f" = 1) and {ch.map:04X}h:00 = 0",
+                )
+            if new != 0:
+                self._check_mappable(ch, key, new, sub)
+
+        return validate
+
+    def _count_validator(self, ch: _Channel) -> Callable[[int], None]:
+        key = (ch.map, 0)
+
+        def validate(new: int) -> None:
+            if new == self._table.value(key):
+                return
+            if self.is_valid(ch):
+                raise self._abort(
+                    ABORT_VALUE_RANGE,
+                    ch,
+                    key,
+                    f"the number of mapped objects can change only while the PDO is invalid "
+                    f"({ch.comm:04X}h:01 bit 31 = 1)",
+                )
+            total = 0
+            for sub in range(1, new + 1):
+                entry = self._table.value((ch.map, sub))
+                if entry == 0:
+                    raise self._abort(ABORT_NOT_MAPPABLE, ch, key, f"mapping entry {sub} is empty")
+                total += self._check_mappable(ch, key, entry, sub)
+            if total > MAX_PDO_BITS:
+                raise self._abort(
+                    ABORT_PDO_LENGTH,
+                    ch,
+                    key,
+                    f"{new} mapped objects are {total} bits; a PDO holds at most {MAX_PDO_BITS}",
+                )
+
+        return validate
+
+    def _changed(self, ch: _Channel) -> Callable[[int], None]:
+        def changed(_value: int) -> None:
+            ch.sync_count = 0
+            ch.last_sent = None
+            if ch.kind is PdoKind.RECEIVE:
+                self._pending.pop(ch.number, None)
+                self.refresh_subscriptions()
+
+        return changed
+
+    # --- runtime -------------------------------------------------------------------------------
+    def refresh_subscriptions(self) -> None:
+        """Subscribe exactly the CAN ids of the valid RPDOs (after configuration changes)."""
+        wanted = {self.can_id(ch): ch for ch in self._rx if self.is_valid(ch)}
+        for can_id in list(self._subscribed):
+            if wanted.get(can_id) is not self._subscribed[can_id]:
+                self._subscriber.unsubscribe(can_id, self._on_frame)
+                del self._subscribed[can_id]
+        for can_id, ch in wanted.items():
+            if can_id not in self._subscribed:
+                self._subscriber.subscribe(can_id, self._on_frame)
+                self._subscribed[can_id] = ch
+
+    def unsubscribe_all(self) -> None:
+        for can_id in list(self._subscribed):
+            self._subscriber.unsubscribe(can_id, self._on_frame)
+        self._subscribed.clear()
+
+    def reset(self) -> None:
+        """After a communication reset: counters, pending data and subscriptions anew."""
+        for ch in self._rx + self._tx:
+            ch.sync_count = 0
+            ch.last_sent = None
+        self._pending.clear()
+        self.refresh_subscriptions()
+
+    def receive(self, can_id: int, data: bytes) -> None:
+        """Keep an RPDO frame until the next SYNC (a later frame replaces an earlier one)."""
+        ch = self._subscribed.get(can_id)
+        if ch is not None:
+            self._pending[ch.number] = bytes(data)
+
+    def clear_pending(self) -> None:
+        self._pending.clear()
+
+    def latch(self, before_apply: Callable[[], None] | None = None) -> LatchResult:
+        """At SYNC: write the contents of the RPDOs received since the previous SYNC to their
+        mapped objects, in mapping order. A frame shorter than its mapping is discarded
+        (CiA 301: EMCY 0x8210, reported in the result); a longer one is used up to its
+        mapped length. A value an object refuses is logged and skipped. ``before_apply`` is
+        called before the objects of each accepted RPDO are written."""
+        result = LatchResult()
+        pending, self._pending = self._pending, {}
+        for number, data in sorted(pending.items()):
+            ch = self._rx[number - 1]
+            mapping = self.mapping(ch)
+            if not self.is_valid(ch) or not mapping:
+                continue
+            need = sum(m.bits for m in mapping) // 8
+            if len(data) < need:
+                logger.warning("%s: %d bytes received, mapping needs %d", ch.name, len(data), need)
+                result.short_frames.append(self.can_id(ch))
+                continue
+            if before_apply is not None:
+                before_apply()
+            offset = 0
+            for obj in mapping:
+                size = obj.bits // 8
+                value = self._table.decode(obj.key, data[offset : offset + size])
+                offset += size
+                try:
+                    self._table.write(obj.key, value)
+                except DriveSdoAbort as exc:
+                    logger.warning("%s: %s", ch.name, exc)
+            result.applied += 1
+        return result
+
+    def frame(self, ch: _Channel) -> bytes:
+        """The TPDO's data with the values of its mapped objects now."""
+        return b"".join(
+            self._table.encode(m.key, self._table.read(m.key)) for m in self.mapping(ch)
+        )
+
+    def transmit(self) -> int:
+        """At SYNC: send the valid TPDOs that are due (type n: every n-th SYNC; type 0: when
+        the data changed). Returns the number of frames sent."""
+        sent = 0
+        for ch in self._tx:
+            if not self.is_valid(ch) or not self._table.value((ch.map, 0)):
+                continue
+            trans_type = self._table.value((ch.comm, 2))
+            if trans_type == 0:
+                data = self.frame(ch)
+                if data == ch.last_sent:
+                    continue
+                ch.last_sent = data
+            else:
+                ch.sync_count += 1
+                if ch.sync_count < trans_type:
+                    continue
+                ch.sync_count = 0
+                data = self.frame(ch)
+            self._send(self.can_id(ch), data)
+            sent += 1
+        return sent

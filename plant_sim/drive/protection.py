@@ -1,0 +1,154 @@
+"""Drive-side protection: the error list behind 603Fh / 1001h / EMCY, the set point watchdog,
+the motor-encoder vs load-scale monitor and the torque limit of 6072h.
+
+Error codes (CiA 301 table 21 / CiA 402 annex):
+
+| code    | meaning                                        | 1001h bits                  |
+| ------- | ---------------------------------------------- | --------------------------- |
+| 0x7300  | sensor: motor encoder and load scale disagree  | generic, device profile     |
+|         | by more than 2101h (paper section II.B)        |                             |
+| 0x8210  | PDO not processed due to length error          | generic, communication      |
+| 0x8240  | unexpected SYNC data length                    | generic, communication      |
+| 0x8250  | RPDO timeout: no set point for 2102h SYNCs     | generic, communication      |
+
+An EMCY frame (CiA 301: code, 1001h, 5 manufacturer bytes) goes out when an error becomes
+active, and an "error reset" EMCY (code 0x0000 with the remaining 1001h) when one is cleared.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from plant_sim.model import AxisPlant
+
+EMCY_NO_ERROR = 0x0000
+EMCY_SENSOR = 0x7300
+EMCY_PDO_LENGTH = 0x8210
+EMCY_SYNC_LENGTH = 0x8240
+EMCY_RPDO_TIMEOUT = 0x8250
+
+ERROR_REGISTER_GENERIC = 0x01
+ERROR_REGISTER_COMMUNICATION = 0x10
+ERROR_REGISTER_PROFILE = 0x20
+
+
+@dataclass(frozen=True)
+class ErrorSpec:
+    code: int
+    register: int
+    description: str
+
+
+ERRORS: dict[int, ErrorSpec] = {
+    e.code: e
+    for e in (
+        ErrorSpec(EMCY_SENSOR, ERROR_REGISTER_PROFILE, "motor encoder and load scale disagree"),
+        ErrorSpec(EMCY_PDO_LENGTH, ERROR_REGISTER_COMMUNICATION, "RPDO shorter than its mapping"),
+        ErrorSpec(EMCY_SYNC_LENGTH, ERROR_REGISTER_COMMUNICATION, "SYNC with more than 1 byte"),
+        ErrorSpec(EMCY_RPDO_TIMEOUT, ERROR_REGISTER_COMMUNICATION, "no RPDO set point in time"),
+    )
+}
+
+#: Sends one EMCY: (error code, error register, 5 manufacturer-specific bytes).
+EmcySender = Callable[[int, int, bytes], None]
+
+
+class ErrorList:
+    """The active errors of the drive, in the order they occurred."""
+
+    def __init__(self, send_emcy: EmcySender) -> None:
+        self._send = send_emcy
+        self._active: list[int] = []
+
+    @property
+    def active(self) -> tuple[int, ...]:
+        return tuple(self._active)
+
+    @property
+    def error_code(self) -> int:
+        """603Fh: the most recent active error, 0 if none."""
+        return self._active[-1] if self._active else EMCY_NO_ERROR
+
+    @property
+    def register(self) -> int:
+        """1001h: generic bit plus the bits of every active error."""
+        bits = 0
+        for code in self._active:
+            bits |= ERRORS[code].register
+        return bits | ERROR_REGISTER_GENERIC if self._active else 0
+
+    def __contains__(self, code: int) -> bool:
+        return code in self._active
+
+    def set(self, code: int, data: bytes = b"") -> bool:
+        """Make ``code`` active and send its EMCY; False (no EMCY) if it already was."""
+        if code not in ERRORS:
+            raise ValueError(f"error code 0x{code:04X} unknown; known: {sorted(ERRORS)}")
+        if code in self._active:
+            return False
+        self._active.append(code)
+        self._send(code, self.register, data)
+        return True
+
+    def clear(self, code: int) -> bool:
+        """Clear ``code`` and send the error reset EMCY; False if it was not active."""
+        if code not in self._active:
+            return False
+        self._active.remove(code)
+        self._send(EMCY_NO_ERROR, self.register, b"")
+        return True
+
+    def forget(self) -> None:
+        """Drop every error without EMCY (NMT reset node: the device starts anew)."""
+        self._active.clear()
+
+
+def emcy_data_int32(value: int) -> bytes:
+    """5 manufacturer bytes carrying a saturated little-endian INTEGER32 and a zero byte."""
+    clamped = max(-(2**31), min(2**31 - 1, value))
+    return struct.pack("<lB", clamped, 0)
+
+
+class SetpointWatchdog:
+    """Counts SYNCs in Operation enabled without an RPDO (2102h; 0 disables it)."""
+
+    def __init__(self) -> None:
+        self.missed = 0
+        self.tripped = False
+
+    def reset(self) -> None:
+        self.missed = 0
+        self.tripped = False
+
+    def on_sync(self, received: bool, limit_cycles: int) -> bool:
+        """True once, at the SYNC where ``limit_cycles`` SYNCs in a row had no RPDO (or the
+        first SYNC after the limit was lowered below the count); again only after an RPDO
+        or :meth:`reset`."""
+        if received:
+            self.reset()
+            return False
+        self.missed += 1
+        if limit_cycles > 0 and self.missed >= limit_cycles and not self.tripped:
+            self.tripped = True
+            return True
+        return False
+
+
+def encoder_discrepancy(plant: AxisPlant) -> float:
+    """Load scale minus motor encoder in load units (m or rad): x_l − θ_m / k_r. The paper's
+    section II.B: the two measuring systems must agree within about 0.5 mm or 0.5°."""
+    return plant.load_position - plant.motor_position_rad / plant.axis.transmission_ratio
+
+
+def axis_torque_limit_nm(plant: AxisPlant) -> float:
+    """The axis file's torque limit (N·m; inf when it has none)."""
+    limit = plant.axis.control.torque_limit
+    return math.inf if limit is None else limit
+
+
+def apply_torque_limit(plant: AxisPlant, limit_nm: float) -> None:
+    """Set the PI speed controller's output limit (and anti-windup clamp) of ``plant``."""
+    plant.set_torque_limit_nm(limit_nm)

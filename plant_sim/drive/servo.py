@@ -1,0 +1,316 @@
+"""The CiA 402 device behaviour of the drive around one :class:`AxisPlant`, without the bus.
+
+:class:`ServoAxis` owns the state machine and decides, per position cycle, what the power
+stage does (paper Fig. 1 below the position controller, section V):
+
+- Operation enabled: the plant's PI speed loop follows 60FFh (``AxisPlant.advance``);
+- Quick stop active / Fault reaction active: the speed loop follows a ramp from the speed at
+  entry down to zero (6085h quick stop or 6084h slow down deceleration, per 605Ah / 605Eh;
+  option code 0 disables the drive at once), completed at standstill;
+- every other state: power stage off, the axis coasts (``AxisPlant.advance_torque(0)``).
+
+Its supervision runs once per SYNC: the set point watchdog (2102h, reaction 6007h), the
+motor encoder vs load scale monitor (2101h, paper section II.B) and the end of the ramps.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from plant_sim.axis import AxisConfig, AxisKind
+from plant_sim.model import AxisPlant
+
+from . import od as O
+from .cia402 import (
+    SW_FOLLOWS_COMMAND,
+    SW_INTERNAL_LIMIT,
+    SW_REMOTE,
+    SW_VOLTAGE_ENABLED,
+    SW_WARNING,
+    Command,
+    Event,
+    State402,
+    StateMachine,
+    Transition,
+    status_bits,
+)
+from .config import DriveConfig
+from .errors import ABORT_VALUE_RANGE, DriveConfigError, DriveSdoAbort
+from .protection import (
+    EMCY_PDO_LENGTH,
+    EMCY_RPDO_TIMEOUT,
+    EMCY_SENSOR,
+    ErrorList,
+    SetpointWatchdog,
+    apply_torque_limit,
+    axis_torque_limit_nm,
+    emcy_data_int32,
+    encoder_discrepancy,
+)
+
+logger = logging.getLogger(__name__)
+
+S = State402
+_POWERED = (
+    S.READY_TO_SWITCH_ON,
+    S.SWITCHED_ON,
+    S.OPERATION_ENABLED,
+    S.QUICK_STOP_ACTIVE,
+    S.FAULT_REACTION_ACTIVE,
+)
+_DRIVING = (S.OPERATION_ENABLED, S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE)
+QUICK_STOP_CODES = (0, 1, 2, 5, 6)  # 605Ah values the drive implements
+_FRACTION_AT_LIMIT = 0.999  # |torque| >= this * limit sets statusword bit 11
+
+
+class ServoAxis:
+    """State machine, supervision and power stage of the drive on ``plant``.
+
+    table: the object table (the servo attaches the CiA 402 and manufacturer objects);
+    errors: the drive's error list (603Fh / 1001h / EMCY).
+    """
+
+    def __init__(
+        self,
+        axis: AxisConfig,
+        plant: AxisPlant,
+        table: O.ObjectTable,
+        errors: ErrorList,
+        config: DriveConfig,
+    ) -> None:
+        self.axis = axis
+        self.plant = plant
+        self.config = config
+        self._table = table
+        self._errors = errors
+        self.sm = StateMachine()  # transition 0: Not ready to switch on
+        self.watchdog = SetpointWatchdog()
+        self._ramp_rad_s = 0.0
+        self._ramp_done = False
+        self._fault_codes: set[int] = set()
+        self._set_axis_defaults()
+        self._attach_objects()
+        self.apply_torque_limit()
+
+    # --- objects -------------------------------------------------------------------------------
+    def _set_axis_defaults(self) -> None:
+        """Defaults that come from the axis file and DriveConfig rather than the EDS."""
+        t = self._table
+        rated_mnm = round(self.config.rated_torque_nm * 1000)
+        t.set_default(O.RATED_TORQUE, rated_mnm)
+        limit = self.axis.control.torque_limit
+        max_permille = 0xFFFF if limit is None else min(0xFFFF, round(1e6 * limit / rated_mnm))
+        t.set_default(O.MAX_TORQUE, max_permille)
+        try:
+            value, index = O.interpolation_period(self.axis.control.position_cycle)
+        except ValueError as exc:
+            raise DriveConfigError(f"60C2h: {exc}") from None
+        t.set_default(O.INTERPOLATION_PERIOD_VALUE, value)
+        t.set_default(O.INTERPOLATION_PERIOD_INDEX, index)
+        scale = O.load_units_per_unit(self.axis.kind)
+        if self.axis.kind is AxisKind.LINEAR:
+            tolerance = O.PAPER_ENCODER_TOLERANCE_M * scale
+        else:
+            tolerance = O.PAPER_ENCODER_TOLERANCE_RAD * scale
+        t.set_default(O.ENCODER_TOLERANCE, round(tolerance))
+
+    def _attach_objects(self) -> None:
+        t, p, kind = self._table, self.plant, self.axis.kind
+        t.on(O.ERROR_REGISTER, read=lambda: self._errors.register)
+        t.on(O.ERROR_CODE, read=lambda: self._errors.error_code)
+        t.on(O.STATUSWORD, read=self.statusword)
+        t.on(O.MODES_OF_OPERATION_DISPLAY, read=lambda: t.value(O.MODES_OF_OPERATION))
+        t.on(O.POSITION_ACTUAL, read=lambda: O.motor_position_increments(p.motor_position_rad))
+        t.on(O.VELOCITY_ACTUAL, read=lambda: O.motor_speed_increments_s(p.motor_speed_rad_s))
+        t.on(
+            O.TORQUE_ACTUAL,
+            read=lambda: O.torque_permille(p.motor_torque_nm, t.value(O.RATED_TORQUE)),
+        )
+        t.on(O.LOAD_POSITION_ACTUAL, read=lambda: O.load_position_units(p.load_position, kind))
+        t.on(
+            O.LOAD_MINUS_MOTOR,
+            read=lambda: O.load_difference_units(encoder_discrepancy(p), kind),
+        )
+        t.on(O.CONTROLWORD, changed=self._controlword_changed)
+        t.on(O.MODES_OF_OPERATION, validate=self._check_mode)
+        t.on(O.QUICK_STOP_OPTION, validate=self._check_quick_stop_option)
+        t.on(O.MAX_TORQUE, changed=lambda _value: self.apply_torque_limit())
+
+    def _check_mode(self, value: int) -> None:
+        if value != O.MODE_CSV:
+            raise DriveSdoAbort(
+                ABORT_VALUE_RANGE,
+                f"mode of operation {value} not supported; allowed {O.MODE_CSV} "
+                "(cyclic synchronous velocity)",
+                key=O.MODES_OF_OPERATION,
+            )
+
+    def _check_quick_stop_option(self, value: int) -> None:
+        if value not in QUICK_STOP_CODES:
+            raise DriveSdoAbort(
+                ABORT_VALUE_RANGE,
+                f"quick stop option code {value} not supported; allowed {QUICK_STOP_CODES}",
+                key=O.QUICK_STOP_OPTION,
+            )
+
+    # --- state ---------------------------------------------------------------------------------
+    @property
+    def state(self) -> State402:
+        return self.sm.state
+
+    @property
+    def torque_limit_nm(self) -> float:
+        """The torque limit in force: min(axis file limit, 6072h · 6076h)."""
+        t = self._table
+        return min(
+            axis_torque_limit_nm(self.plant),
+            O.torque_limit_nm(t.value(O.MAX_TORQUE), t.value(O.RATED_TORQUE)),
+        )
+
+    def apply_torque_limit(self) -> None:
+        apply_torque_limit(self.plant, self.torque_limit_nm)
+
+    def statusword(self) -> int:
+        """6041h: the state's pattern plus voltage enabled (4), warning (7: an error is
+        active outside Fault), remote (9), internal limit active (11: torque at the limit),
+        drive follows the command value (12: Operation enabled)."""
+        state = self.sm.state
+        word = status_bits(state)
+        if state is not S.NOT_READY_TO_SWITCH_ON:
+            word |= SW_REMOTE
+        if state in _POWERED:
+            word |= SW_VOLTAGE_ENABLED
+        if state is S.OPERATION_ENABLED:
+            word |= SW_FOLLOWS_COMMAND
+        at_limit = abs(self.plant.motor_torque_nm) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
+        if state in _DRIVING and at_limit:
+            word |= SW_INTERNAL_LIMIT
+        if self._errors.active and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
+            word |= SW_WARNING
+        return word
+
+    # --- life cycle ----------------------------------------------------------------------------
+    def initialised(self) -> None:
+        """Transition 1 (the drive's initialisation is done)."""
+        self._take(self.sm.event(Event.INITIALISED))
+
+    def reset_application(self) -> None:
+        """NMT reset node: CiA 402 transitions 0 and 1, errors and faults forgotten (the
+        caller restores the object defaults first)."""
+        self._take(*self.sm.reset())
+        self._errors.forget()
+        self._fault_codes.clear()
+        self.watchdog.reset()
+        self.apply_torque_limit()
+
+    # --- per SYNC ------------------------------------------------------------------------------
+    def rpdo_arrived(self) -> None:
+        """A complete RPDO is being applied at this SYNC: the set point is back."""
+        self._errors.clear(EMCY_RPDO_TIMEOUT)
+        self._errors.clear(EMCY_PDO_LENGTH)
+
+    def supervise(self, rpdo_received: bool) -> None:
+        """After the RPDO latch, before the TPDOs: watchdog, encoders, end of the ramps."""
+        t = self._table
+        if self.sm.state is S.OPERATION_ENABLED:
+            if self.watchdog.on_sync(rpdo_received, t.value(O.SETPOINT_TIMEOUT)):
+                self._setpoint_timeout()
+        else:
+            self.watchdog.reset()
+        if self.sm.state not in (S.FAULT_REACTION_ACTIVE, S.FAULT) and not self._encoder_ok():
+            self._fault(EMCY_SENSOR, emcy_data_int32(t.read(O.LOAD_MINUS_MOTOR)))
+        standstill = abs(self.plant.motor_speed_rad_s) <= self.config.standstill_rad_s
+        if self._ramp_done and standstill:
+            if self.sm.state is S.QUICK_STOP_ACTIVE and t.value(O.QUICK_STOP_OPTION) in (1, 2):
+                self._take(self.sm.event(Event.QUICK_STOP_COMPLETED))
+            elif self.sm.state is S.FAULT_REACTION_ACTIVE:
+                self._take(self.sm.event(Event.FAULT_REACTION_COMPLETED))
+
+    def advance(self) -> None:
+        """Run the plant one position cycle as the state says (see the module docstring)."""
+        p, t = self.plant, self._table
+        disturbance_nm = t.value(O.DISTURBANCE) / 1000.0
+        state = self.sm.state
+        if state is S.OPERATION_ENABLED:
+            speed = O.increments_to_rad(t.value(O.TARGET_VELOCITY))
+            p.advance(speed_setpoint_rad_s=speed, disturbance_nm=disturbance_nm)
+        elif state in (S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE):
+            if state is S.QUICK_STOP_ACTIVE:
+                slow = t.value(O.QUICK_STOP_OPTION) in (1, 5)
+            else:
+                slow = t.value(O.FAULT_REACTION_OPTION) == 1
+            key = O.PROFILE_DECELERATION if slow else O.QUICK_STOP_DECELERATION
+            step = O.increments_to_rad(t.value(key)) * self.axis.control.position_cycle
+            if abs(self._ramp_rad_s) <= step:
+                self._ramp_rad_s = 0.0
+            else:
+                self._ramp_rad_s -= math.copysign(step, self._ramp_rad_s)
+            p.advance(speed_setpoint_rad_s=self._ramp_rad_s, disturbance_nm=disturbance_nm)
+            self._ramp_done = self._ramp_rad_s == 0.0
+        else:
+            p.advance_torque(0.0, disturbance_nm)
+
+    # --- protection ----------------------------------------------------------------------------
+    def _encoder_ok(self) -> bool:
+        """Paper section II.B: |load scale − motor encoder| within 2101h."""
+        difference = abs(self._table.read(O.LOAD_MINUS_MOTOR))
+        return difference <= self._table.value(O.ENCODER_TOLERANCE)
+
+    def _setpoint_timeout(self) -> None:
+        """No RPDO for 2102h SYNCs: EMCY 0x8250 and the 6007h reaction."""
+        self._errors.set(EMCY_RPDO_TIMEOUT)
+        option = self._table.value(O.ABORT_CONNECTION_OPTION)
+        if option == 1:
+            self._fault(EMCY_RPDO_TIMEOUT)
+        elif option == 2:
+            self._take(*self.sm.command(Command.DISABLE_VOLTAGE))
+        elif option == 3:
+            self._take(*self.sm.command(Command.QUICK_STOP))
+
+    def _fault(self, code: int, data: bytes = b"") -> None:
+        self._errors.set(code, data)
+        self._fault_codes.add(code)
+        self._take(self.sm.event(Event.FAULT))
+
+    def _fault_cleared(self) -> bool:
+        """Fault reset allowed: every cause of the fault is gone."""
+        for code in self._fault_codes:
+            if code == EMCY_SENSOR and not self._encoder_ok():
+                return False
+            if code == EMCY_RPDO_TIMEOUT and EMCY_RPDO_TIMEOUT in self._errors:
+                return False
+        return True
+
+    # --- state machine glue --------------------------------------------------------------------
+    def _controlword_changed(self, controlword: int) -> None:
+        transitions = self.sm.controlword_written(
+            controlword,
+            quick_stop_stays=self._table.value(O.QUICK_STOP_OPTION) >= 5,
+            fault_cleared=self._fault_cleared,
+        )
+        self._take(*transitions)
+
+    def _take(self, *transitions: Transition | None) -> None:
+        """What entering a state does beyond the state machine itself."""
+        for tr in transitions:
+            if tr is None:
+                continue
+            logger.info("transition %d -> %s", tr.number, tr.target.value)
+            if tr.target is S.OPERATION_ENABLED:
+                self.watchdog.reset()
+            elif tr.target in (S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE):
+                self._ramp_rad_s = self.plant.motor_speed_rad_s
+                self._ramp_done = False
+                if tr.target is S.QUICK_STOP_ACTIVE:
+                    immediate = self._table.value(O.QUICK_STOP_OPTION) == 0
+                    event = Event.QUICK_STOP_COMPLETED
+                else:
+                    immediate = self._table.value(O.FAULT_REACTION_OPTION) == 0
+                    event = Event.FAULT_REACTION_COMPLETED
+                if immediate:  # option code 0: disable the drive function, coast
+                    self._take(self.sm.event(event))
+            elif tr.number == 15:
+                for code in sorted(self._fault_codes):
+                    self._errors.clear(code)
+                self._fault_codes.clear()
