@@ -88,8 +88,9 @@ position_command = _inline(_core.position_command)
     P_INV_KR,  # 1 / k_r  (reciprocals: divisions would dominate the substep's critical path)
     P_INV_J1,  # 1 / J1
     P_INV_M,  # 1 / P_M
+    P_LAG_MEAN,  # mean of the lag's step response over a substep: T/dt·(1 − alpha) (1: ideal)
     N_PARAMS,
-) = range(38)
+) = range(39)
 
 # --- state vector --------------------------------------------------------------------------
 MAX_DELAY = 2048  # speed cycles of dead time the ring buffer holds
@@ -106,8 +107,10 @@ MAX_DELAY = 2048  # speed cycles of dead time the ring buffer holds
     S_T,  # s, simulated time
     S_SP_PENDING,  # rad/s, set point waiting for the next position cycle
     S_DLY_IDX,  # index into the dead-time ring buffer
+    S_TAU_PREV,  # N m, torque applied over the previous substep (kick averaging)
+    S_FD_PREV,  # N, external load force over the previous substep
     S_DLY0,  # first slot of the ring buffer
-) = range(13)
+) = range(15)
 N_STATE = S_DLY0 + MAX_DELAY
 
 # --- trace rows of the closed loop (one per position cycle) ------------------------------------
@@ -220,14 +223,27 @@ def _measure_speed(p: np.ndarray, st: np.ndarray) -> None:
 
 @_inline
 def _torque_phase(p: np.ndarray, st: np.ndarray, cmd: float, f_dist: float) -> None:
-    """Current loop and mechanics over one speed cycle for a torque set point ``cmd``."""
+    """Current loop and mechanics over one speed cycle for a torque set point ``cmd``.
+
+    The first-order current loop is solved exactly: the torque applied over a substep is its
+    exact mean, and ``S_TAU`` holds the sampled value at the substep's end. A leapfrog kick at
+    t_n spans [t_n − dt/2, t_n + dt/2], so it applies the mean of the previous and the coming
+    substep's torque and load force: without that, every torque change (each speed cycle)
+    would cost a first-order error."""
     st[S_TAU_CMD] = cmd
     nsub = int(p[P_NSUB])
     dt = p[P_TSC] / nsub
     alpha = p[P_LAG_ALPHA]
+    mean = p[P_LAG_MEAN]
     for _ in range(nsub):
-        st[S_TAU] = cmd + (st[S_TAU] - cmd) * alpha
-        substep(p, st, st[S_TAU], f_dist, dt)
+        start = st[S_TAU]
+        applied = cmd + (start - cmd) * (1.0 - mean)
+        st[S_TAU] = cmd + (start - cmd) * alpha
+        tau_kick = 0.5 * (st[S_TAU_PREV] + applied)
+        f_kick = 0.5 * (st[S_FD_PREV] + f_dist)
+        st[S_TAU_PREV] = applied
+        st[S_FD_PREV] = f_dist
+        substep(p, st, tau_kick, f_kick, dt)
     st[S_T] += p[P_TSC]
 
 

@@ -13,11 +13,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from regulator import RegulatorConfig
+from regulator import (
+    DEFAULT_BETA_T_RAD_S,
+    DEFAULT_N,
+    DEFAULT_TF_S,
+    RegulatorConfig,
+    default_tv_s,
+)
 
 from . import kernel as K
 from .axis import AxisConfig, PositionFeedback
 from .errors import ScenarioError
+
+#: Detector window when only monitoring (no regulator configured): the paper's n.
+MONITOR_N = DEFAULT_N
 
 #: Largest ω·dt of a mechanics substep (ω_r for an elastic axis); see kernel docstring.
 MAX_OMEGA_DT = 0.1
@@ -91,6 +100,10 @@ def build_params(
     nsub = options.substeps or default_substeps(axis)
     dt_sub = c.speed_cycle / nsub
     p[K.P_LAG_ALPHA] = math.exp(-dt_sub / c.current_lag) if c.current_lag else 0.0
+    # exact mean over a substep of the lag's response: start + (cmd - start)·P_LAG_MEAN
+    p[K.P_LAG_MEAN] = (
+        1.0 - c.current_lag / dt_sub * (1.0 - p[K.P_LAG_ALPHA]) if c.current_lag else 1.0
+    )
     n_delay = round((c.delay or 0.0) / c.speed_cycle)
     if n_delay > K.MAX_DELAY:
         raise ScenarioError(
@@ -104,12 +117,20 @@ def build_params(
     p[K.P_KV] = c.kv
     p[K.P_FB_LOAD] = 1.0 if c.position_feedback is PositionFeedback.LOAD else 0.0
     p[K.P_SP_DELAY] = float(options.setpoint_delay_cycles)
-    reg = regulator or RegulatorConfig(kv=c.kv, cycle_s=c.position_cycle, enabled=False)
-    p[K.P_REG_ON] = 1.0 if reg.enabled else 0.0
-    p[K.P_REG_N] = reg.n
-    p[K.P_REG_TV] = reg.effective_tv_s
-    p[K.P_REG_TF] = reg.tf_s
-    p[K.P_REG_BT] = reg.beta_t_rad_s
+    if regulator is None:
+        # ordinary control (Fig. 1): no regulator, so none of its rules apply (e.g. the
+        # sampling condition at a high k_v); the detector still reports β with the defaults
+        p[K.P_REG_ON] = 0.0
+        p[K.P_REG_N] = MONITOR_N
+        p[K.P_REG_TV] = default_tv_s(c.kv)
+        p[K.P_REG_TF] = DEFAULT_TF_S
+        p[K.P_REG_BT] = DEFAULT_BETA_T_RAD_S
+    else:
+        p[K.P_REG_ON] = 1.0 if regulator.enabled else 0.0
+        p[K.P_REG_N] = regulator.n
+        p[K.P_REG_TV] = regulator.effective_tv_s
+        p[K.P_REG_TF] = regulator.tf_s
+        p[K.P_REG_BT] = regulator.beta_t_rad_s
     p[K.P_INV_KR] = 1.0 / p[K.P_KR]
     p[K.P_INV_J1] = 1.0 / p[K.P_J1]
     p[K.P_INV_M] = 1.0 / p[K.P_M]

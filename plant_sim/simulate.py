@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from regulator import RegulatorConfig
+from regulator.core import detector_state_size
 
 from . import kernel as K
 from .axis import AxisConfig
@@ -96,16 +97,7 @@ def simulate(
     p = build_params(axis, regulator, options)
     x0 = float(refs.position[0]) if start_position is None else start_position
     st = initial_state(axis, x0)
-    reg_cfg = regulator or RegulatorConfig(
-        kv=axis.control.kv, cycle_s=axis.control.position_cycle, enabled=False
-    )
-    reg_state = np.zeros(_detector_size(reg_cfg.n))
+    reg_state = np.zeros(detector_state_size(int(p[K.P_REG_N])))
     out = np.empty((len(refs.position), K.N_OUT))
     K.run_closed_loop(p, st, reg_state, refs.position, refs.speed, refs.disturbance_nm, out)
     return Trace({name: out[:, i] for i, name in enumerate(SIM_COLUMNS)})
-
-
-def _detector_size(n: int) -> int:
-    from regulator.core import detector_state_size
-
-    return detector_state_size(n)
