@@ -45,7 +45,7 @@ def main(argv: list[str]) -> int:
     _ensure_venv()
     verb, rest = argv[0], argv[1:]
     if verb == "demo":
-        cmd = [str(PY), "-m", "plant_sim", "paper", *(rest or ["--out", "out/paper"])]
+        cmd = [str(PY), "-m", "bridge", "demo", *(rest or ["--out", "out/demo"])]
     elif verb == "test":
         cmd = [str(PY), "-m", "pytest", *rest]
     else:

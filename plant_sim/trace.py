@@ -14,7 +14,7 @@ import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import BinaryIO
 
 import numpy as np
 
@@ -94,22 +94,27 @@ class Trace:
 
 
 class TraceWriter:
-    """Row-wise CSV writer that flushes every ``flush_every`` rows (and on close)."""
+    """Row-wise CSV writer: rows are collected and every ``flush_every`` rows (and on close)
+    written as one block in a single unbuffered write, so the file only ever holds whole rows
+    and a recorder killed mid-run leaves a trace that reads back up to its last block."""
 
     def __init__(self, path: str | Path, columns: Sequence[str], flush_every: int = 100) -> None:
         if "time" not in columns:
             raise TraceFileError("a trace needs a 'time' column", column="time")
         self.columns = list(columns)
-        self._file: IO[str] = open(path, "w", newline="", encoding="utf-8")  # noqa: SIM115
-        self._writer = csv.writer(self._file)
-        self._writer.writerow(self.columns)
+        self._file: BinaryIO = open(path, "wb", buffering=0)  # noqa: SIM115 - closed in close()
+        self._file.write((",".join(self.columns) + "\n").encode())
+        self._fmt = ",".join(["%r"] * len(self.columns)) + "\n"
         self._flush_every = max(1, flush_every)
-        self._pending = 0
+        self._lines: list[str] = []
 
     def write_row(self, values: Sequence[float]) -> None:
-        self._writer.writerow([repr(float(v)) for v in values])
-        self._pending += 1
-        if self._pending >= self._flush_every:
+        if len(values) != len(self.columns):
+            raise TraceFileError(
+                f"row has {len(values)} values, the trace {len(self.columns)} columns"
+            )
+        self._lines.append(self._fmt % tuple(float(v) for v in values))
+        if len(self._lines) >= self._flush_every:
             self.flush()
 
     def write_rows(self, rows: Iterable[Sequence[float]]) -> None:
@@ -117,8 +122,9 @@ class TraceWriter:
             self.write_row(row)
 
     def flush(self) -> None:
-        self._file.flush()
-        self._pending = 0
+        if self._lines:
+            self._file.write("".join(self._lines).encode())
+            self._lines.clear()
 
     def close(self) -> None:
         if not self._file.closed:

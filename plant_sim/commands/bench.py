@@ -20,9 +20,9 @@ from pathlib import Path
 
 from ..model import KernelOptions, default_substeps
 from ..reference import simulate_reference
+from ..report import LIMIT_CYCLE_VISCOUS
 from ..scenarios import SectionX, run_section_x
 from .common import add_axis_argument, read_axis
-from .paper import LIMIT_CYCLE_VISCOUS
 
 NAME = "bench"
 HELP = "kernel throughput vs the solve_ivp reference, peak memory (and --all: diagnosis)"

@@ -19,10 +19,9 @@ import numpy as np
 from tqdm import tqdm
 
 from ..axis import AxisConfig
-from ..report import summarize
+from ..report import LIMIT_CYCLE_VISCOUS, summarize
 from ..scenarios import SectionX, run_section_x
 from .common import add_axis_argument, read_axis
-from .paper import LIMIT_CYCLE_VISCOUS
 
 NAME = "sweep"
 HELP = "vibration frequency over k_v and backlash: band, proportionality, independence of δ"

@@ -1,0 +1,496 @@
+"""The per-SYNC controller: pure and stepped (no bus, no clock, no threads).
+
+:meth:`CycleController.step` gets the payloads of the drive's TPDO1/TPDO2 of one SYNC (or
+``None`` for a missing one) and the control time, and returns the RPDO1 payload (controlword,
+target velocity). Between cycles the I/O layer reports heartbeats and EMCYs
+(:meth:`~CycleController.on_heartbeat`, :meth:`~CycleController.on_emcy`), and the SDO server
+changes parameters, sends commands and starts moves.
+
+Running, per SYNC k (docs/canopen_layout.md: the set point takes effect at SYNC k+1):
+
+1. measurements at t_k: motor angle theta_m (6064h), load position x_l (60E4h:01), statusword,
+   torque, motor speed; a missing TPDO is extrapolated from the last samples;
+2. supervision: PDO loss, heartbeat (1016h), EMCY, drive state, following error, encoder
+   discrepancy -- any of them stops the axis (quick stop, set point 0) with a
+   :class:`StopReason` and a message until a reset command;
+3. interpolator: x_ref and its speed, omega_s = k_r * speed;
+4. eq. 7 on the load scale: omega_c = k_r k_v (x_ref - x_l) (:class:`regulator.PositionController`);
+5. eq. 15: omega_r = omega_s - lambda (omega_s - omega_c) (:class:`regulator.BacklashRegulator`),
+   clamped to the speed limit, sent as 60FFh.
+"""
+
+from __future__ import annotations
+
+import logging
+from enum import Enum, IntEnum
+
+from canopen.profiles.p402 import State402
+
+from regulator import BacklashRegulator, PositionController
+
+from .errors import ParameterError, SdoAbort
+from .interpolator import Interpolator, Move, Table
+from .layout import RPDO1_STRUCT, TPDO1_STRUCT, TPDO2_STRUCT
+from .params import LOCKED, BridgeParams
+from .scaling import MOTOR_INCREMENTS_PER_RAD, MOTOR_RAD_PER_INCREMENT, Scaling
+
+log = logging.getLogger("bridge")
+
+#: Time the drive gets to reach Operation Enabled after an enable command, s.
+ENABLE_TIMEOUT_S = 1.0
+#: NMT state byte of an operational node in its heartbeat (CiA 301).
+NMT_OPERATIONAL = 0x05
+NMT_BOOTUP = 0x00
+
+
+class BridgeState(Enum):
+    """State of the bridge (2104h)."""
+
+    CONFIGURING = 0  # start-up: the drive is being configured over SDO
+    DISABLED = 1  # cycling, commanding no motion; locked parameters may change
+    ENABLING = 2  # bringing the drive to Operation Enabled through the controlword
+    RUNNING = 3  # closed loop: set points every cycle
+    STOPPED = 4  # stopped by a fault (reason in 2105h/2106h); quick stop until reset
+
+
+class StopReason(Enum):
+    """Why the bridge stopped commanding motion (2105h)."""
+
+    NONE = 0
+    PDO_LOSS = 1  # more consecutive cycles without a complete TPDO set than 200Ah allows
+    DRIVE_FAULT = 2  # statusword shows Fault / Fault reaction active
+    DRIVE_EMCY = 3  # the drive sent an EMCY with a non-zero error code
+    HEARTBEAT_LOST = 4  # no drive heartbeat within the 1016h consumer time
+    FOLLOWING_ERROR = 5  # |x_ref - x_l| above 2008h
+    ENCODER_DISCREPANCY = 6  # motor and load scale disagree by more than 2009h
+    DRIVE_DISABLED = 7  # the drive left Operation Enabled without a fault
+    DRIVE_NMT = 8  # the drive's heartbeat reports boot-up or a non-operational NMT state
+    ENABLE_TIMEOUT = 9  # the drive did not reach Operation Enabled within ENABLE_TIMEOUT_S
+
+
+class Command(IntEnum):
+    """Values of the command object 2020h."""
+
+    ENABLE = 1
+    DISABLE = 2
+    RESET = 3
+
+
+class Drive402State(Enum):
+    """CiA 402 state decoded from the statusword (names as canopen.profiles.p402.State402)."""
+
+    NOT_READY_TO_SWITCH_ON = "NOT READY TO SWITCH ON"
+    SWITCH_ON_DISABLED = "SWITCH ON DISABLED"
+    READY_TO_SWITCH_ON = "READY TO SWITCH ON"
+    SWITCHED_ON = "SWITCHED ON"
+    OPERATION_ENABLED = "OPERATION ENABLED"
+    QUICK_STOP_ACTIVE = "QUICK STOP ACTIVE"
+    FAULT_REACTION_ACTIVE = "FAULT REACTION ACTIVE"
+    FAULT = "FAULT"
+    UNKNOWN = "UNKNOWN"
+
+
+def _decode_table() -> tuple[Drive402State, ...]:
+    # Only statusword bits 0-3, 5 and 6 select the state: a 128-entry table of (sw & 0x6F).
+    table = []
+    for low in range(128):
+        state = Drive402State.UNKNOWN
+        for name, (mask, value) in State402.SW_MASK.items():
+            if low & mask == value:
+                state = Drive402State(name)
+                break
+        table.append(state)
+    return tuple(table)
+
+
+_STATE_OF_LOW_BITS = _decode_table()
+
+
+def drive_state(statusword: int) -> Drive402State:
+    """CiA 402 state of a statusword (6041h)."""
+    return _STATE_OF_LOW_BITS[statusword & 0x6F]
+
+
+def enable_controlword(state: Drive402State, last_controlword: int) -> int:
+    """The controlword that moves a drive in ``state`` one step towards Operation Enabled
+    (paths of canopen.profiles.p402.State402). A fault reset needs a rising edge of bit 7,
+    so after a 0x0080 that did not clear the fault 0x0000 comes first."""
+    if state is Drive402State.UNKNOWN:
+        return State402.CW_DISABLE_VOLTAGE
+    if state is Drive402State.OPERATION_ENABLED:
+        return State402.CW_OPERATION_ENABLED
+    target = State402.next_state_indirect(state.value)
+    cw = State402.TRANSITIONTABLE[(state.value, target)]
+    if cw == State402.CW_SWITCH_ON_DISABLED and last_controlword & 0x0080:
+        return State402.CW_DISABLE_VOLTAGE
+    return cw
+
+
+CW_STOPPED = State402.CW_QUICK_STOP
+CW_DISABLED = State402.CW_SWITCH_ON
+CW_RUNNING = State402.CW_OPERATION_ENABLED
+
+
+class CycleController:
+    """The bridge's control cycle; see the module docstring. Not thread-safe: the I/O layer
+    calls everything from one thread."""
+
+    def __init__(
+        self,
+        params: BridgeParams,
+        scaling: Scaling,
+        state: BridgeState = BridgeState.ENABLING,
+    ) -> None:
+        self.scaling = scaling
+        self.state = state
+        self.stop_reason = StopReason.NONE
+        self.stop_message = "none"
+        self.params = params
+        self._build(params)
+        self.interpolator = Interpolator(params.cycle_s)
+        self._pending: list[Move | Table] = []
+        self._rpdo = bytearray(RPDO1_STRUCT.size)
+        self._unit_per_inc = scaling.load_unit_per_increment
+        self._nm_per_permille = scaling.torque_nm_per_permille
+        # measurements (SI) and their history for extrapolation
+        self.now_s = 0.0
+        self.motor_position_rad = 0.0
+        self.load_position = 0.0
+        self.motor_speed_rad_s = 0.0
+        self.motor_torque_nm = 0.0
+        self.statusword = 0
+        self._load_speed = 0.0
+        self._have_sample = False
+        # controller values of the last cycle
+        self.position_reference = 0.0
+        self.omega_s = 0.0
+        self.omega_c = 0.0
+        self.omega_r = 0.0
+        self.following_error = 0.0
+        self.motor_load_difference = 0.0
+        self._difference_at_enable = 0.0
+        self.controlword = CW_DISABLED
+        # supervision
+        self.consecutive_missed = 0
+        self.missed_cycles = 0
+        self.cycles = 0
+        self.drive_error_code = 0
+        self._emcy_pending: tuple[int, int] | None = None
+        self._heartbeat_at: float | None = None
+        self._heartbeat_state = NMT_OPERATIONAL
+        self._enable_started_s: float | None = None
+
+    # --- configuration ---------------------------------------------------------------------
+    def _build(self, params: BridgeParams) -> None:
+        self.position_controller = PositionController(params.kv_per_s, params.transmission_ratio)
+        self.regulator = BacklashRegulator.from_config(params.regulator_config())
+        self._kr = params.transmission_ratio
+        self._cycle_s = params.cycle_s
+
+    def set_scaling(self, scaling: Scaling) -> None:
+        """Use ``scaling`` (e.g. the rated torque read from the drive at start-up)."""
+        self.scaling = scaling
+        self._unit_per_inc = scaling.load_unit_per_increment
+        self._nm_per_permille = scaling.torque_nm_per_permille
+
+    @property
+    def rpdo_payload(self) -> bytearray:
+        """The RPDO1 payload buffer; :meth:`step` rewrites it in place every cycle."""
+        return self._rpdo
+
+    @property
+    def axis_enabled(self) -> bool:
+        """Locked parameters may not change (ENABLING or RUNNING)."""
+        return self.state in (BridgeState.ENABLING, BridgeState.RUNNING)
+
+    def set_params(self, params: BridgeParams) -> None:
+        """Apply validated parameters. Changing a :data:`~bridge.params.LOCKED` one while the
+        axis is enabled raises ParameterError 0800 0022 (nothing changed)."""
+        changed = {name for name in LOCKED if getattr(params, name) != getattr(self.params, name)}
+        if changed and self.axis_enabled:
+            name = sorted(changed)[0]
+            raise ParameterError(
+                f"{name}: may not change while the axis is enabled",
+                field=name,
+                value=getattr(params, name),
+                abort_code=SdoAbort.DEVICE_STATE,
+            )
+        self.params = params
+        if changed:
+            self._build(params)
+            self.interpolator = Interpolator(params.cycle_s, self.load_position)
+
+    # --- events between cycles -------------------------------------------------------------
+    def on_heartbeat(self, nmt_state: int, now_s: float) -> None:
+        """A heartbeat of the drive (NMT state byte without the toggle bit) at ``now_s``."""
+        self._heartbeat_at = now_s
+        self._heartbeat_state = nmt_state & 0x7F
+
+    def on_emcy(self, error_code: int, error_register: int) -> None:
+        """An EMCY of the drive; code 0000h (error reset) only clears the stored code."""
+        self.drive_error_code = error_code
+        if error_code != 0:
+            self._emcy_pending = (error_code, error_register)
+
+    def restart_supervision(self) -> None:
+        """Forget heartbeats and EMCYs seen so far (the drive's boot-up and pre-operational
+        heartbeats during start-up); monitoring begins with the next heartbeat."""
+        self._heartbeat_at = None
+        self._heartbeat_state = NMT_OPERATIONAL
+        self._emcy_pending = None
+
+    def command(self, command: Command) -> None:
+        """Enable, disable or reset; ParameterError 0800 0022 if not possible now."""
+        state = self.state
+        if command is Command.ENABLE and state is BridgeState.DISABLED:
+            self._set_enabling()
+        elif command is Command.DISABLE and state in (BridgeState.ENABLING, BridgeState.RUNNING):
+            self.state = BridgeState.DISABLED
+            self._clear_motion()
+        elif command is Command.RESET and state is BridgeState.STOPPED:
+            self.state = BridgeState.DISABLED
+            self.stop_reason = StopReason.NONE
+            self.stop_message = "none"
+            self._emcy_pending = None
+            self.consecutive_missed = 0
+        elif (
+            command is Command.ENABLE and state in (BridgeState.ENABLING, BridgeState.RUNNING)
+        ) or (command is Command.DISABLE and state is BridgeState.DISABLED):
+            return  # already there
+        else:
+            raise ParameterError(
+                f"command {command.name} is not possible in state {state.name}"
+                + (" (reset the stop first: 2020h = 3)" if state is BridgeState.STOPPED else ""),
+                field="command",
+                value=int(command),
+                abort_code=SdoAbort.DEVICE_STATE,
+            )
+
+    def queue_move(self, item: Move | Table) -> None:
+        """Queue motion: started now when running, else when the axis becomes running."""
+        if self.state is BridgeState.STOPPED:
+            raise ParameterError(
+                f"no motion while stopped ({self.stop_reason.name}); reset first",
+                field="move",
+                value=item,
+                abort_code=SdoAbort.DEVICE_STATE,
+            )
+        if self.state is BridgeState.RUNNING:
+            self.interpolator.queue(item)
+        else:
+            self._pending.append(item)
+
+    def start_move(self, item: Move) -> None:
+        """Start a move now (target-position object): only while running and idle."""
+        if self.state is not BridgeState.RUNNING or self.interpolator.busy:
+            why = "a move is active" if self.state is BridgeState.RUNNING else self.state.name
+            raise ParameterError(
+                f"target position: no new move now ({why}); allowed while running and idle",
+                field="target",
+                value=item.target,
+                abort_code=SdoAbort.DEVICE_STATE,
+            )
+        self.interpolator.queue(item)
+
+    @property
+    def moving(self) -> bool:
+        return (self.state is BridgeState.RUNNING and self.interpolator.busy) or bool(self._pending)
+
+    # --- the cycle -------------------------------------------------------------------------
+    def step(self, now_s: float, tpdo1: bytes | None, tpdo2: bytes | None) -> bytearray:
+        """One SYNC: measurements in, RPDO1 payload (controlword, 60FFh) out.
+
+        ``tpdo1``/``tpdo2``: payloads of the right length, or None when missing this cycle.
+        The returned bytearray is reused by the next call.
+        """
+        self.cycles += 1
+        self.now_s = now_s
+        self._measure(tpdo1, tpdo2)
+        state = self.state
+        if state is BridgeState.RUNNING:
+            self._run()
+        elif state is BridgeState.ENABLING:
+            self._enable()
+        elif state is BridgeState.STOPPED:
+            self._output(CW_STOPPED, 0.0)
+        else:
+            self._output(CW_DISABLED, 0.0)
+        return self._rpdo
+
+    def _measure(self, tpdo1: bytes | None, tpdo2: bytes | None) -> None:
+        if tpdo2 is not None:
+            sw, torque, speed_inc = TPDO2_STRUCT.unpack(tpdo2)
+            self.statusword = sw
+            self.motor_torque_nm = torque * self._nm_per_permille
+            self.motor_speed_rad_s = speed_inc * MOTOR_RAD_PER_INCREMENT
+        if tpdo1 is not None:
+            pos_inc, load_inc = TPDO1_STRUCT.unpack(tpdo1)
+            load = load_inc * self._unit_per_inc
+            if self._have_sample:
+                self._load_speed = (load - self.load_position) / self._cycle_s
+            self.load_position = load
+            self.motor_position_rad = pos_inc * MOTOR_RAD_PER_INCREMENT
+            self._have_sample = True
+        elif self._have_sample:  # extrapolate over the lost sample
+            self.load_position += self._load_speed * self._cycle_s
+            self.motor_position_rad += self.motor_speed_rad_s * self._cycle_s
+        if tpdo1 is None or tpdo2 is None:
+            self.consecutive_missed += 1
+            self.missed_cycles += 1
+        else:
+            self.consecutive_missed = 0
+
+    def _supervise(self) -> bool:
+        """Checks common to ENABLING and RUNNING; True if the axis was stopped."""
+        p = self.params
+        if self.consecutive_missed > p.pdo_loss_tolerance:
+            return self._stop(
+                StopReason.PDO_LOSS,
+                f"{self.consecutive_missed} consecutive cycles without a complete TPDO set "
+                f"(tolerance 200Ah = {p.pdo_loss_tolerance})",
+            )
+        if self._emcy_pending is not None:
+            code, register = self._emcy_pending
+            self._emcy_pending = None
+            return self._stop(
+                StopReason.DRIVE_EMCY,
+                f"drive EMCY error code 0x{code:04X}, error register 0x{register:02X}",
+            )
+        if self._heartbeat_at is not None:
+            if p.heartbeat_consumer_ms and (
+                self.now_s - self._heartbeat_at > p.heartbeat_consumer_ms / 1000.0
+            ):
+                return self._stop(
+                    StopReason.HEARTBEAT_LOST,
+                    f"no drive heartbeat for {self.now_s - self._heartbeat_at:.3f} s "
+                    f"(1016h consumer time {p.heartbeat_consumer_ms} ms)",
+                )
+            if self._heartbeat_state != NMT_OPERATIONAL:
+                what = "boot-up" if self._heartbeat_state == NMT_BOOTUP else "NMT state"
+                return self._stop(
+                    StopReason.DRIVE_NMT,
+                    f"drive heartbeat reports {what} 0x{self._heartbeat_state:02X}, "
+                    f"not operational (0x05)",
+                )
+        return False
+
+    def _enable(self) -> None:
+        if self._supervise():
+            return
+        if self._enable_started_s is None:
+            self._enable_started_s = self.now_s
+        ds = drive_state(self.statusword)
+        if ds is Drive402State.OPERATION_ENABLED:
+            self._enter_running()
+            self._run()
+            return
+        if self.now_s - self._enable_started_s > ENABLE_TIMEOUT_S:
+            self._stop(
+                StopReason.ENABLE_TIMEOUT,
+                f"drive not in Operation Enabled after {ENABLE_TIMEOUT_S:g} s "
+                f"(state {ds.value}, statusword 0x{self.statusword:04X})",
+            )
+            return
+        self._output(enable_controlword(ds, self.controlword), 0.0)
+
+    def _enter_running(self) -> None:
+        self.state = BridgeState.RUNNING
+        self._enable_started_s = None
+        self.interpolator.hold(self.load_position)
+        for item in self._pending:
+            self.interpolator.queue(item)
+        self._pending.clear()
+        self.regulator.reset()
+        self._difference_at_enable = self.motor_position_rad / self._kr - self.load_position
+
+    def _run(self) -> None:
+        if self._supervise():
+            return
+        ds = drive_state(self.statusword)
+        if ds is not Drive402State.OPERATION_ENABLED:
+            fault = ds in (Drive402State.FAULT, Drive402State.FAULT_REACTION_ACTIVE)
+            self._stop(
+                StopReason.DRIVE_FAULT if fault else StopReason.DRIVE_DISABLED,
+                f"drive left Operation Enabled: {ds.value} (statusword 0x{self.statusword:04X}"
+                + (f", error code 0x{self.drive_error_code:04X})" if fault else ")"),
+            )
+            return
+        p = self.params
+        kr = self._kr
+        interp = self.interpolator
+        interp.step()
+        x_ref = interp.position
+        x_l = self.load_position
+        self.position_reference = x_ref
+        omega_s = kr * interp.speed
+        omega_c = self.position_controller.step(x_ref, x_l)  # eq. 7
+        error = x_ref - x_l
+        difference = self.motor_position_rad / kr - x_l - self._difference_at_enable
+        self.following_error = error
+        self.motor_load_difference = difference
+        self.omega_s = omega_s
+        self.omega_c = omega_c
+        if self.consecutive_missed == 0:  # limits are checked on measured values only
+            if abs(error) > p.following_error_limit:
+                self._stop(
+                    StopReason.FOLLOWING_ERROR,
+                    f"following error {error:.6g} load units exceeds 2008h = "
+                    f"{p.following_error_limit:g}",
+                )
+                return
+            if abs(difference) > p.discrepancy_limit:
+                self._stop(
+                    StopReason.ENCODER_DISCREPANCY,
+                    f"motor encoder and load scale differ by {difference:.6g} load units "
+                    f"since enable, above 2009h = {p.discrepancy_limit:g}",
+                )
+                return
+        omega_r = self.regulator.step(omega_s, omega_c)  # eq. 15
+        limit = p.speed_limit_rad_s
+        if omega_r > limit:
+            omega_r = limit
+        elif omega_r < -limit:
+            omega_r = -limit
+        self._output(CW_RUNNING, omega_r)
+
+    def _output(self, controlword: int, omega_r: float) -> None:
+        self.controlword = controlword
+        self.omega_r = omega_r
+        RPDO1_STRUCT.pack_into(
+            self._rpdo, 0, controlword, round(omega_r * MOTOR_INCREMENTS_PER_RAD)
+        )
+
+    def _clear_motion(self) -> None:
+        self.interpolator.hold(self.load_position)
+        self._pending.clear()
+        self._enable_started_s = None
+        self.omega_s = self.omega_c = 0.0
+
+    def _set_enabling(self) -> None:
+        self.state = BridgeState.ENABLING
+        self._enable_started_s = None
+
+    def _stop(self, reason: StopReason, message: str) -> bool:
+        self.state = BridgeState.STOPPED
+        self.stop_reason = reason
+        self.stop_message = message
+        self._clear_motion()
+        self._output(CW_STOPPED, 0.0)
+        log.error("axis stopped at t = %.4f s: %s: %s", self.now_s, reason.name, message)
+        return True
+
+    # --- live values -----------------------------------------------------------------------
+    @property
+    def vibration_level(self) -> float:
+        """beta of the last cycle, rad/s (Fig. 5)."""
+        return self.regulator.vibration_level
+
+    @property
+    def switching_factor(self) -> float:
+        """lambda of the last cycle (eq. 15)."""
+        return self.regulator.switching_factor
+
+    @property
+    def error_register(self) -> int:
+        """1001h: bit 0 (generic error) while stopped by a fault."""
+        return 1 if self.state is BridgeState.STOPPED else 0

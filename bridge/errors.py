@@ -1,0 +1,95 @@
+"""Exceptions of :mod:`bridge`: one root, each subclass also the matching builtin.
+
+Protocol codes travel as attributes: :class:`ParameterError` carries the CiA 301 SDO abort
+code an SDO server answers with, :class:`DriveSetupError` the abort code the drive sent (if
+any) and the object that failed.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+
+class SdoAbort(IntEnum):
+    """CiA 301 SDO abort codes the bridge sends or understands (table 22 of CiA 301)."""
+
+    WRITE_ONLY = 0x0601_0001  # attempt to read a write-only object
+    READ_ONLY = 0x0601_0002  # attempt to write a read-only object
+    NO_OBJECT = 0x0602_0000  # object does not exist in the object dictionary
+    LENGTH_MISMATCH = 0x0607_0010  # data type does not match, length of service parameter
+    NO_SUBINDEX = 0x0609_0011  # sub-index does not exist
+    VALUE_RANGE = 0x0609_0030  # value range of parameter exceeded (only for write access)
+    TOO_HIGH = 0x0609_0031  # value of parameter written too high
+    TOO_LOW = 0x0609_0032  # value of parameter written too low
+    GENERAL = 0x0800_0000  # general error
+    DEVICE_STATE = 0x0800_0022  # data cannot be stored because of the present device state
+
+
+class BridgeError(Exception):
+    """Root of every error raised on purpose by :mod:`bridge`."""
+
+
+class BridgeConfigError(BridgeError, ValueError):
+    """A configuration value (CLI argument, constructor argument) is out of its allowed range."""
+
+
+class ParameterError(BridgeError, ValueError):
+    """A parameter value (SDO write or configuration) is refused; nothing was changed.
+
+    ``field``: the parameter's name, ``value``: what was given, ``abort_code``: the
+    :class:`SdoAbort` an SDO server answers the write with.
+    """
+
+    def __init__(self, message: str, *, field: str, value: object, abort_code: SdoAbort) -> None:
+        super().__init__(message)
+        self.field = field
+        self.value = value
+        self.abort_code = abort_code
+
+
+class MoveError(BridgeError, ValueError):
+    """A move (command line, move file, target-position object) is malformed."""
+
+
+class MoveFileError(MoveError):
+    """A move file cannot be read or is malformed; ``path`` and ``line``/``entry`` name where."""
+
+    def __init__(self, message: str, *, path: str, entry: int | None = None) -> None:
+        super().__init__(message)
+        self.path = path
+        self.entry = entry
+
+
+class PdoFrameError(BridgeError, ValueError):
+    """A received PDO frame has the wrong length for the configured mapping."""
+
+    def __init__(self, message: str, *, can_id: int, length: int, expected: int) -> None:
+        super().__init__(message)
+        self.can_id = can_id
+        self.length = length
+        self.expected = expected
+
+
+class DriveSetupError(BridgeError, RuntimeError):
+    """Configuring the drive over SDO or bringing it to Operation Enabled failed.
+
+    ``index``/``subindex`` name the object (``None`` when not object-specific),
+    ``abort_code`` the SDO abort code the drive answered with (``None`` for timeouts).
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        index: int | None = None,
+        subindex: int | None = None,
+        abort_code: int | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.index = index
+        self.subindex = subindex
+        self.abort_code = abort_code
+
+
+class DriveTimeoutError(DriveSetupError, TimeoutError):
+    """The drive did not answer (SDO response, state change, heartbeat) in time."""

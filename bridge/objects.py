@@ -1,0 +1,248 @@
+"""The bridge's objects served over SDO: the canopen LocalNode's read/write callbacks.
+
+Reads of bound objects come from the running controller (parameters, live values,
+counters); everything else from the EDS defaults. A write is decoded, validated by
+:mod:`bridge.params` (or by the controller for commands and moves) and applied only if valid;
+a refused write raises ``canopen.SdoAbortedError`` with the code of the refusal, which the SDO
+server sends as the abort (the LocalNode stores nothing after a raising callback). Read-only
+and write-only objects, unknown objects and wrong lengths are refused by canopen's LocalNode
+itself (0601 0002, 0601 0001, 0602 0000 / 0609 0011, 0607 0010).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import canopen
+from canopen.sdo import SdoAbortedError
+
+from . import od as objdict
+from .cycle import Command, CycleController
+from .errors import ParameterError, SdoAbort
+from .interpolator import Move
+
+log = logging.getLogger("bridge")
+
+_F32 = struct.Struct("<f")
+_U8 = struct.Struct("<B")
+_U16 = struct.Struct("<H")
+_U32 = struct.Struct("<I")
+_I32 = struct.Struct("<i")
+
+
+@dataclass
+class PdoCounters:
+    """What the loop counted about the drive's TPDOs (2107h).
+
+    missed: TPDO slots (one per TPDO per cycle) without a valid frame at the end of their
+    cycle; late: valid TPDO frames not used for their cycle (arrived outside the window, or an
+    extra one in a window -- the newest is used); invalid: frames of the wrong length.
+    Invariant: missed - late = TPDO frames sent by the drive - valid frames received.
+    """
+
+    missed: int = 0
+    late: int = 0
+    invalid: int = 0
+    cycles: int = 0
+    missed_cycles: int = 0
+
+
+def _f32(value: float) -> bytes:
+    if not math.isfinite(value):
+        value = 0.0
+    return _F32.pack(max(-3.4e38, min(3.4e38, value)))
+
+
+# parameter objects: index -> (BridgeParams field, decode raw -> value, encode value -> raw)
+Codec = tuple[str, Callable[[bytes], object], Callable[[object], bytes]]
+
+
+def _real(field: str) -> Codec:
+    return field, lambda raw: _F32.unpack(raw)[0], lambda v: _f32(v)  # type: ignore[arg-type]
+
+
+def _u8(field: str) -> Codec:
+    return field, lambda raw: _U8.unpack(raw)[0], lambda v: _U8.pack(v)  # type: ignore[arg-type]
+
+
+def _bool_decode(raw: bytes) -> object:
+    value = raw[0]
+    return bool(value) if value in (0, 1) else value  # 2..255 fail the bool check (0609 0030)
+
+
+def _tv_decode(raw: bytes) -> object:
+    value = _F32.unpack(raw)[0]
+    return None if value == 0.0 else value  # 0: eq. 14 default
+
+
+_PARAMS: dict[tuple[int, int], Codec] = {
+    (objdict.KV, 0): _real("kv_per_s"),
+    (objdict.REG_ENABLE, 0): ("regulator_enabled", _bool_decode, lambda v: _U8.pack(int(v))),  # type: ignore[arg-type]
+    (objdict.BETA_T, 0): _real("beta_t_rad_s"),
+    (objdict.WINDOW_N, 0): _u8("n"),
+    (objdict.TV, 0): ("tv_s", _tv_decode, lambda v: _f32(0.0 if v is None else v)),  # type: ignore[arg-type]
+    (objdict.TF, 0): _real("tf_s"),
+    (objdict.KR, 0): _real("transmission_ratio"),
+    (objdict.SPEED_LIMIT, 0): _real("speed_limit_rad_s"),
+    (objdict.FE_LIMIT, 0): _real("following_error_limit"),
+    (objdict.DISC_LIMIT, 0): _real("discrepancy_limit"),
+    (objdict.PDO_TOLERANCE, 0): _u8("pdo_loss_tolerance"),
+    (objdict.CYCLE_PERIOD, 0): (
+        "cycle_s",
+        lambda raw: _U32.unpack(raw)[0] / 1e6,
+        lambda v: _U32.pack(round(v * 1e6)),  # type: ignore[operator]
+    ),
+}
+
+
+def _check_subindex(subindex: int, var: object) -> None:
+    """canopen's LocalNode serves a plain VAR at any sub-index; only sub-index 0 exists."""
+    if subindex and not isinstance(
+        getattr(var, "parent", None),
+        canopen.objectdictionary.ODRecord | canopen.objectdictionary.ODArray,
+    ):
+        raise SdoAbortedError(int(SdoAbort.NO_SUBINDEX))
+
+
+class ObjectServer:
+    """Binds a :class:`canopen.LocalNode` to a :class:`CycleController` (see module doc).
+
+    load_increments_per_unit: scaling of the move objects 2010h-2012h (nm or µrad per load
+    unit). drive_id: the node whose heartbeat 1016h:01 must name.
+    """
+
+    def __init__(
+        self,
+        controller: CycleController,
+        counters: PdoCounters,
+        load_increments_per_unit: float,
+        drive_id: int,
+    ) -> None:
+        self.controller = controller
+        self.counters = counters
+        self._inc_per_unit = load_increments_per_unit
+        self.drive_id = drive_id
+        self._last_target = 0
+        self.writes_refused = 0
+
+    def attach(self, node: canopen.LocalNode) -> None:
+        node.add_read_callback(self.on_read)
+        node.add_write_callback(self.on_write)
+
+    # --- reads ---------------------------------------------------------------------------------
+    def on_read(self, index: int, subindex: int, od: object = None) -> bytes | None:
+        """Raw value of a bound object, or None for the LocalNode to use the EDS default."""
+        _check_subindex(subindex, od)
+        c = self.controller
+        codec = _PARAMS.get((index, subindex))
+        if codec is not None:
+            return codec[2](getattr(c.params, codec[0]))
+        if index == objdict.HEARTBEAT_CONSUMER and subindex == 1:
+            return _U32.pack((self.drive_id << 16) | c.params.heartbeat_consumer_ms)
+        if index == objdict.PDO_COUNTERS and subindex:
+            k = self.counters
+            values = (k.missed, k.late, k.invalid, k.cycles, k.missed_cycles)
+            return _U32.pack(values[subindex - 1] & 0xFFFF_FFFF) if subindex <= 5 else None
+        reader = _LIVE.get(index)
+        return None if reader is None or subindex else reader(self, c)
+
+    # --- writes --------------------------------------------------------------------------------
+    def on_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
+        """Validate and apply a write; raise SdoAbortedError (nothing changed) if refused."""
+        _check_subindex(subindex, od)
+        try:
+            self.write(index, subindex, bytes(data))
+        except ParameterError as exc:
+            self.writes_refused += 1
+            log.warning(
+                "SDO write %04Xh:%02X refused (0x%08X): %s",
+                index,
+                subindex,
+                int(exc.abort_code),
+                exc,
+            )
+            raise SdoAbortedError(int(exc.abort_code)) from None
+
+    def write(self, index: int, subindex: int, raw: bytes) -> None:
+        """Apply a raw write to a bound object (ParameterError with the abort code if refused).
+
+        Lengths are checked by the LocalNode before this is called over SDO."""
+        c = self.controller
+        codec = _PARAMS.get((index, subindex))
+        if codec is not None:
+            field, decode, _ = codec
+            self._set(field, decode(raw))
+        elif index == objdict.HEARTBEAT_CONSUMER and subindex == 1:
+            value = _U32.unpack(raw)[0]
+            node, ms = (value >> 16) & 0xFF, value & 0xFFFF
+            if value >> 24 or node != self.drive_id:
+                raise ParameterError(
+                    f"1016h:01 = 0x{value:08X}: must be (drive node-ID {self.drive_id} << 16) "
+                    f"| timeout in ms; bits 24-31 reserved (0)",
+                    field="heartbeat_consumer_ms",
+                    value=value,
+                    abort_code=SdoAbort.VALUE_RANGE,
+                )
+            self._set("heartbeat_consumer_ms", ms)
+        elif index == objdict.TARGET:
+            target = _I32.unpack(raw)[0]
+            p = c.params
+            try:
+                move = Move(target / self._inc_per_unit, p.feed, p.accel)
+            except ValueError as exc:
+                raise ParameterError(
+                    f"target = {target}: {exc}",
+                    field="target",
+                    value=target,
+                    abort_code=SdoAbort.VALUE_RANGE,
+                ) from None
+            c.start_move(move)
+            self._last_target = target
+        elif index in (objdict.FEED, objdict.ACCEL):
+            field = "feed" if index == objdict.FEED else "accel"
+            self._set(field, _U32.unpack(raw)[0] / self._inc_per_unit)
+        elif index == objdict.COMMAND:
+            value = _U8.unpack(raw)[0]
+            if value not in {int(cmd) for cmd in Command}:
+                raise ParameterError(
+                    f"command = {value}: allowed 1 (enable), 2 (disable), 3 (reset)",
+                    field="command",
+                    value=value,
+                    abort_code=SdoAbort.VALUE_RANGE,
+                )
+            c.command(Command(value))
+        # other writable objects: none (all others are ro/const in the EDS)
+
+    def _set(self, field: str, value: object) -> None:
+        c = self.controller
+        new = c.params.with_value(field, value, axis_enabled=c.axis_enabled)
+        c.set_params(new)
+
+
+def _live_table() -> dict[int, Callable[[ObjectServer, CycleController], bytes]]:
+    return {
+        objdict.ERROR_REGISTER: lambda s, c: _U8.pack(c.error_register),
+        objdict.TARGET: lambda s, c: _I32.pack(s._last_target),
+        objdict.FEED: lambda s, c: _U32.pack(round(c.params.feed * s._inc_per_unit)),
+        objdict.ACCEL: lambda s, c: _U32.pack(
+            min(0xFFFF_FFFF, round(c.params.accel * s._inc_per_unit))
+        ),
+        objdict.MOVE_STATUS: lambda s, c: _U8.pack(1 if c.moving else 0),
+        objdict.BETA: lambda s, c: _f32(c.vibration_level),
+        objdict.LAMBDA: lambda s, c: _f32(c.switching_factor),
+        objdict.FOLLOWING_ERROR: lambda s, c: _f32(c.following_error),
+        objdict.MOTOR_LOAD_DIFF: lambda s, c: _f32(c.motor_load_difference),
+        objdict.STATE: lambda s, c: _U8.pack(c.state.value),
+        objdict.STOP_REASON: lambda s, c: _U8.pack(c.stop_reason.value),
+        objdict.STOP_MESSAGE: lambda s, c: (c.stop_message or "none").encode("ascii", "replace"),
+        objdict.SPEED_SETPOINT: lambda s, c: _f32(c.omega_r),
+        objdict.POSITION_REFERENCE: lambda s, c: _f32(c.position_reference),
+        objdict.DRIVE_ERROR: lambda s, c: _U16.pack(c.drive_error_code & 0xFFFF),
+    }
+
+
+_LIVE = _live_table()

@@ -1,0 +1,452 @@
+"""The bridge's object dictionary: one table, rendered to ``config/bridge.eds`` (CiA 306).
+
+The table (:data:`OBJECTS`) is the single source: :func:`bridge.eds.render_eds` writes the EDS that
+CANopen tools read, :func:`load_od` reads that file back with ``canopen.import_od`` for the
+bridge's own :class:`canopen.LocalNode`, and ``tests/test_bridge_od.py`` checks that the
+committed file equals the rendering and that every object behaves in a running node.
+
+Units and scaling (also in each object's ``Unit``/``Description`` keys, a python-canopen
+extension other tools ignore): gains, times and limits are REAL32 in SI units (speeds in rad/s
+at the motor, positions in load units: m for a linear axis, rad for a rotary one); move
+targets and feeds are integers in load-scale increments like the drive's 60E4h:01 (nm or
+µrad). Defaults are the paper's axis (``config/paper_axis.toml``, section IX); at run time
+the axis file's values apply.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+
+import canopen
+from canopen.objectdictionary import datatypes as dt
+
+from .errors import BridgeConfigError
+
+#: Where the rendered EDS lives in the repository.
+DEFAULT_EDS_PATH = Path(__file__).resolve().parent.parent / "config" / "bridge.eds"
+DEFAULT_NODE_ID = 1
+DEFAULT_DRIVE_ID = 2
+PAPER_KR = 100.0 * math.pi  # rad/m, section IX
+
+
+class Access(Enum):
+    """CiA 306 AccessType."""
+
+    RO = "ro"
+    RW = "rw"
+    WO = "wo"
+    CONST = "const"
+
+
+class ObjectKind(Enum):
+    """CiA 306 ObjectType."""
+
+    VAR = 0x7
+    ARRAY = 0x8
+    RECORD = 0x9
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One VAR (or one sub-index of an ARRAY/RECORD).
+
+    data_type: CiA 301 data type code (``canopen.objectdictionary.datatypes``). default: the
+    EDS DefaultValue. low/high: LowLimit/HighLimit (integers only; REAL32 ranges are in the
+    description and enforced by :mod:`bridge.params`).
+    """
+
+    index: int
+    subindex: int
+    name: str
+    data_type: int
+    access: Access
+    default: int | float | str
+    unit: str = ""
+    description: str = ""
+    low: int | None = None
+    high: int | None = None
+
+
+@dataclass(frozen=True)
+class Group:
+    """An ARRAY or RECORD: sub-index 0 (highest sub-index) is generated."""
+
+    index: int
+    name: str
+    kind: ObjectKind
+    members: tuple[Entry, ...]
+    description: str = ""
+
+
+def _var(
+    index: int,
+    name: str,
+    data_type: int,
+    access: Access,
+    default: int | float | str,
+    unit: str = "",
+    description: str = "",
+    low: int | None = None,
+    high: int | None = None,
+) -> Entry:
+    return Entry(index, 0, name, data_type, access, default, unit, description, low, high)
+
+
+R, U8, U16, U32, I32, BOOL, VS = (
+    dt.REAL32,
+    dt.UNSIGNED8,
+    dt.UNSIGNED16,
+    dt.UNSIGNED32,
+    dt.INTEGER32,
+    dt.BOOLEAN,
+    dt.VISIBLE_STRING,
+)
+RO, RW, WO, CONST = Access.RO, Access.RW, Access.WO, Access.CONST
+
+# --- indices used by the code ----------------------------------------------------------------
+DEVICE_TYPE, ERROR_REGISTER, COB_ID_SYNC, CYCLE_PERIOD = 0x1000, 0x1001, 0x1005, 0x1006
+DEVICE_NAME, HEARTBEAT_CONSUMER, IDENTITY = 0x1008, 0x1016, 0x1018
+KV, REG_ENABLE, BETA_T, WINDOW_N, TV, TF, KR = range(0x2000, 0x2007)
+SPEED_LIMIT, FE_LIMIT, DISC_LIMIT, PDO_TOLERANCE = range(0x2007, 0x200B)
+TARGET, FEED, ACCEL, MOVE_STATUS = range(0x2010, 0x2014)
+COMMAND = 0x2020
+BETA, LAMBDA, FOLLOWING_ERROR, MOTOR_LOAD_DIFF, STATE, STOP_REASON, STOP_MESSAGE = range(
+    0x2100, 0x2107
+)
+PDO_COUNTERS, SPEED_SETPOINT, POSITION_REFERENCE, DRIVE_ERROR = range(0x2107, 0x210B)
+
+#: 1005h: bit 30 set = this node produces SYNC, COB-ID 0x080.
+SYNC_COB_ID_VALUE = 0x4000_0080
+
+OBJECTS: tuple[Entry | Group, ...] = (
+    # --- communication profile (CiA 301) -----------------------------------------------------
+    _var(DEVICE_TYPE, "Device type", U32, CONST, 0, description="no device profile"),
+    _var(
+        ERROR_REGISTER,
+        "Error register",
+        U8,
+        RO,
+        0,
+        description="bit 0 generic error: set while the bridge is stopped by a fault",
+    ),
+    _var(
+        COB_ID_SYNC,
+        "COB-ID SYNC message",
+        U32,
+        CONST,
+        SYNC_COB_ID_VALUE,
+        description="bit 30: the bridge is the SYNC producer; COB-ID 0x080",
+    ),
+    _var(
+        CYCLE_PERIOD,
+        "Communication cycle period",
+        U32,
+        RW,
+        1000,
+        "us",
+        "SYNC period = position-control cycle; section VII sampling rule "
+        "cycle < 1/(2 (n+1) kv); locked while the axis is enabled",
+        100,
+        100_000,
+    ),
+    _var(DEVICE_NAME, "Manufacturer device name", VS, CONST, "backlash-bridge"),
+    Group(
+        HEARTBEAT_CONSUMER,
+        "Consumer heartbeat time",
+        ObjectKind.ARRAY,
+        (
+            Entry(
+                HEARTBEAT_CONSUMER,
+                1,
+                "Consumer heartbeat time 1",
+                U32,
+                RW,
+                (DEFAULT_DRIVE_ID << 16) | 250,
+                "ms",
+                "bits 16-23 drive node-ID, bits 0-15 timeout in ms (0: not monitored); "
+                "locked while the axis is enabled",
+            ),
+        ),
+    ),
+    Group(
+        IDENTITY,
+        "Identity object",
+        ObjectKind.RECORD,
+        (
+            Entry(IDENTITY, 1, "Vendor-ID", U32, RO, 0),
+            Entry(IDENTITY, 2, "Product code", U32, RO, 0),
+            Entry(IDENTITY, 3, "Revision number", U32, RO, 0x0001_0000),
+            Entry(IDENTITY, 4, "Serial number", U32, RO, 0),
+        ),
+    ),
+    # --- parameters (locked while the axis is enabled, see bridge.params.LOCKED) ------------
+    _var(
+        KV,
+        "Position gain kv",
+        R,
+        RW,
+        25.0,
+        "1/s",
+        "P position controller on the load scale, eq. 7: omega_c = k_r kv (x_ref - x_l); "
+        "(0, 1000]; locked while enabled",
+    ),
+    _var(
+        REG_ENABLE,
+        "Regulator enable",
+        BOOL,
+        RW,
+        1,
+        "",
+        "1: speed regulator of eq. 15 in the loop; 0: omega_r = omega_c (beta still "
+        "measured); locked while enabled",
+    ),
+    _var(
+        BETA_T,
+        "Vibration threshold beta_T",
+        R,
+        RW,
+        0.2,
+        "rad/s",
+        "beta_T of eq. 15, motor side; (0, 1e4]; locked while enabled",
+    ),
+    _var(
+        WINDOW_N,
+        "Detector window n",
+        U8,
+        RW,
+        4,
+        "",
+        "the detector averages n+1 samples (section VII, paper: 4); locked while enabled",
+        1,
+        64,
+    ),
+    _var(
+        TV,
+        "Holder decay time T_v",
+        R,
+        RW,
+        0.0,
+        "s",
+        "0: eq. 14 default 20/kv; else >= 20/kv (eq. 14); locked while enabled",
+    ),
+    _var(
+        TF,
+        "Low-pass time constant T_f",
+        R,
+        RW,
+        0.05,
+        "s",
+        "vibration level smoothing (section VII); (0, 100]; locked while enabled",
+    ),
+    _var(
+        KR,
+        "Transmission ratio k_r",
+        R,
+        RW,
+        PAPER_KR,
+        "rad per load unit",
+        "motor rad per load unit (m or rad); locked while enabled",
+    ),
+    # --- limits (may change at any time) ----------------------------------------------------
+    _var(
+        SPEED_LIMIT,
+        "Speed set point limit",
+        R,
+        RW,
+        100.0 * math.pi,
+        "rad/s",
+        "|omega_r| is clamped to this; (0, 12867]",
+    ),
+    _var(
+        FE_LIMIT,
+        "Following error limit",
+        R,
+        RW,
+        0.005,
+        "load unit",
+        "stop (reason 5) when |x_ref - x_l| exceeds it; (0, 10]",
+    ),
+    _var(
+        DISC_LIMIT,
+        "Encoder discrepancy limit",
+        R,
+        RW,
+        0.0005,
+        "load unit",
+        "stop (reason 6) when motor and load scale differ by more than this relative to "
+        "enable (section II.B: about 0.5 mm or 0.5 deg); (0, 10]",
+    ),
+    _var(
+        PDO_TOLERANCE,
+        "PDO loss tolerance",
+        U8,
+        RW,
+        5,
+        "cycles",
+        "consecutive cycles with a missing TPDO before the axis is stopped (reason 1)",
+        0,
+        255,
+    ),
+    # --- moves ------------------------------------------------------------------------------
+    _var(
+        TARGET,
+        "Target position",
+        I32,
+        RW,
+        0,
+        "load increments",
+        "nm (linear) or urad (rotary); a write starts a move at 2011h/2012h (only while "
+        "running and no move is active, else 0800 0022)",
+    ),
+    _var(
+        FEED,
+        "Feed",
+        U32,
+        RW,
+        50_000_000,
+        "load increments/s",
+        "nm/s or urad/s; feed * k_r must not exceed the speed set point limit",
+        1,
+        0xFFFF_FFFF,
+    ),
+    _var(
+        ACCEL,
+        "Acceleration",
+        U32,
+        RW,
+        0,
+        "load increments/s^2",
+        "nm/s^2 or urad/s^2; 0: speed step (the paper's section X input)",
+        0,
+        0xFFFF_FFFF,
+    ),
+    _var(MOVE_STATUS, "Move status", U8, RO, 0, "", "0: idle (holding), 1: moving"),
+    _var(
+        COMMAND,
+        "Command",
+        U8,
+        WO,
+        0,
+        "",
+        "1: enable, 2: disable, 3: reset a stop (then enable); others: 0609 0030",
+        1,
+        3,
+    ),
+    # --- live values (read only) ------------------------------------------------------------
+    _var(BETA, "Vibration level beta", R, RO, 0.0, "rad/s", "Fig. 5 detector output"),
+    _var(LAMBDA, "Switching factor lambda", R, RO, 1.0, "", "eq. 15"),
+    _var(FOLLOWING_ERROR, "Following error", R, RO, 0.0, "load unit", "x_ref - x_l, eq. 1"),
+    _var(
+        MOTOR_LOAD_DIFF,
+        "Motor-load difference",
+        R,
+        RO,
+        0.0,
+        "load unit",
+        "theta_m/k_r - x_l minus its value at enable (section II.B)",
+    ),
+    _var(
+        STATE,
+        "Bridge state",
+        U8,
+        RO,
+        0,
+        "",
+        "0 configuring, 1 disabled, 2 enabling, 3 running, 4 stopped",
+    ),
+    _var(STOP_REASON, "Stop reason", U8, RO, 0, "", "bridge.cycle.StopReason value; 0: none"),
+    _var(STOP_MESSAGE, "Stop message", VS, RO, "none", "", "why the axis was stopped"),
+    Group(
+        PDO_COUNTERS,
+        "PDO counters",
+        ObjectKind.RECORD,
+        (
+            Entry(
+                PDO_COUNTERS,
+                1,
+                "Missed TPDOs",
+                U32,
+                RO,
+                0,
+                "frames",
+                "TPDO slots with no frame by the end of their cycle",
+            ),
+            Entry(
+                PDO_COUNTERS,
+                2,
+                "Late TPDOs",
+                U32,
+                RO,
+                0,
+                "frames",
+                "TPDO frames received outside their cycle (extra or after the deadline)",
+            ),
+            Entry(
+                PDO_COUNTERS,
+                3,
+                "Invalid TPDOs",
+                U32,
+                RO,
+                0,
+                "frames",
+                "TPDO frames of the wrong length (counted as missed too)",
+            ),
+            Entry(PDO_COUNTERS, 4, "Cycles", U32, RO, 0, "cycles", "SYNCs sent"),
+            Entry(
+                PDO_COUNTERS,
+                5,
+                "Missed cycles",
+                U32,
+                RO,
+                0,
+                "cycles",
+                "cycles computed without a complete TPDO set",
+            ),
+        ),
+    ),
+    _var(SPEED_SETPOINT, "Speed set point omega_r", R, RO, 0.0, "rad/s", "last 60FFh sent"),
+    _var(
+        POSITION_REFERENCE,
+        "Position reference",
+        R,
+        RO,
+        0.0,
+        "load unit",
+        "interpolator output x_ref",
+    ),
+    _var(
+        DRIVE_ERROR,
+        "Drive error code",
+        U16,
+        RO,
+        0,
+        "",
+        "last EMCY error code of the drive (0: none)",
+    ),
+)
+
+
+def entries() -> Iterator[Entry]:
+    """Every VAR and sub-index (without the generated sub-index 0 of groups)."""
+    for obj in OBJECTS:
+        if isinstance(obj, Group):
+            yield from obj.members
+        else:
+            yield obj
+
+
+def load_od(
+    path: str | Path = DEFAULT_EDS_PATH, node_id: int = DEFAULT_NODE_ID
+) -> canopen.ObjectDictionary:
+    """Read the bridge's EDS with ``canopen.import_od`` (raises BridgeConfigError)."""
+    path = Path(path)
+    if not path.is_file():
+        raise BridgeConfigError(f"{path}: no such EDS file (render it with `python -m bridge eds`)")
+    try:
+        return canopen.import_od(str(path), node_id)
+    except Exception as exc:  # configparser and canopen raise assorted types
+        raise BridgeConfigError(f"{path}: not a readable EDS ({exc})") from exc

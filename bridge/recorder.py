@@ -1,0 +1,195 @@
+"""Recording of the loop: the trace file and a candump log of the bus traffic.
+
+* :class:`TraceRecorder`: one row per cycle, the columns of ``shared/spec/trace-file.md``
+  (time, position_reference, speed_setpoint, motor_position, motor_speed, load_position,
+  motor_torque, disturbance when known) plus beta, lambda and the loop's own values
+  (:data:`EXTRA_COLUMNS`); formatted row by row after the set point has gone out, written
+  in whole blocks of ``flush_rows`` rows (a killed recorder leaves a file readable up to its
+  last block); optionally kept in memory for :meth:`TraceRecorder.trace`.
+* :class:`BusLog`: every frame sent or received, in ``candump -L`` format through python-can's
+  :class:`can.io.CanutilsLogWriter`, timestamps in control time, flushed every
+  ``flush_every`` frames.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from typing import BinaryIO
+
+import can
+import numpy as np
+
+from plant_sim.errors import TraceFileError
+from plant_sim.trace import Trace
+
+from .cycle import CycleController
+
+BASE_COLUMNS = (
+    "time",
+    "position_reference",
+    "speed_setpoint",
+    "motor_position",
+    "motor_speed",
+    "load_position",
+    "motor_torque",
+    "beta",
+    "lambda",
+)
+#: Columns beyond the spec's: omega_s and omega_c (rad/s, motor), following error x_ref - x_l
+#: and the motor-load difference since enable (load units), the bridge state (2104h value).
+EXTRA_COLUMNS = ("omega_s", "omega_c", "following_error", "motor_load_difference", "state")
+DEFAULT_FLUSH_ROWS = 100
+
+
+class TraceRecorder:
+    """Per-cycle trace rows (see the module docstring).
+
+    path: CSV file or None (memory only). keep: keep every row in memory for :meth:`trace`.
+    disturbance: known disturbance per cycle (N·m at the motor, the spec's ``disturbance``
+    column; rows beyond its end get 0), or None when the bridge cannot know it.
+    flush_rows: rows per block; a block reaches the file in one write.
+
+    Each row is formatted when recorded (``repr`` of every value, as
+    :class:`plant_sim.trace.TraceWriter` writes them, so the cost is spread over the cycles)
+    and every ``flush_rows`` rows the block goes to the file in a single unbuffered write:
+    the file only ever holds whole rows, so a recorder killed mid-run leaves a trace that
+    reads back up to its last block. (TraceWriter itself writes through an 8 KiB text buffer
+    that can reach the file in the middle of a row.)
+    """
+
+    def __init__(
+        self,
+        path: str | Path | None,
+        *,
+        keep: bool = True,
+        disturbance: np.ndarray | None = None,
+        flush_rows: int = DEFAULT_FLUSH_ROWS,
+    ) -> None:
+        self.columns = (
+            BASE_COLUMNS + (("disturbance",) if disturbance is not None else ()) + EXTRA_COLUMNS
+        )
+        if "time" not in self.columns:  # pragma: no cover - guarded by the constant
+            raise TraceFileError("a trace needs a 'time' column", column="time")
+        self._dist = None if disturbance is None else np.asarray(disturbance, dtype=float)
+        self._fmt = ",".join(["%r"] * len(self.columns)) + "\n"
+        self._file: BinaryIO | None = None
+        if path is not None:
+            self._file = open(path, "wb", buffering=0)  # noqa: SIM115 - closed in close()
+            self._file.write((",".join(self.columns) + "\n").encode())
+        self._lines: list[str] = []
+        self._flush_rows = max(1, flush_rows)
+        self._keep = keep
+        self._block = np.empty((self._flush_rows, len(self.columns)))
+        self._in_block = 0
+        self._rows: list[np.ndarray] = []
+        self._count = 0
+
+    def record(self, c: CycleController) -> None:
+        """Append the row of the cycle ``c`` just computed."""
+        reg = c.regulator
+        head = (
+            c.now_s,
+            c.position_reference,
+            c.omega_r,
+            c.motor_position_rad,
+            c.motor_speed_rad_s,
+            c.load_position,
+            c.motor_torque_nm,
+            reg.vibration_level,
+            reg.switching_factor,
+        )
+        tail = (
+            c.omega_s,
+            c.omega_c,
+            c.following_error,
+            c.motor_load_difference,
+            float(c.state.value),
+        )
+        if self._dist is not None:
+            k = self._count
+            values = (*head, float(self._dist[k]) if k < self._dist.size else 0.0, *tail)
+        else:
+            values = head + tail
+        self._count += 1
+        if self._file is not None:
+            self._lines.append(self._fmt % values)
+        if self._keep:
+            self._block[self._in_block] = values
+        self._in_block += 1
+        if self._in_block == self._flush_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the rows recorded since the last flush to the file (one write)."""
+        if self._keep and self._in_block:
+            self._rows.append(self._block[: self._in_block].copy())
+        self._in_block = 0
+        if self._file is not None and self._lines:
+            self._file.write("".join(self._lines).encode())
+            self._lines.clear()
+
+    @property
+    def keeps_rows(self) -> bool:
+        """Whether :meth:`trace` is available (``keep=True``)."""
+        return self._keep
+
+    @property
+    def rows(self) -> int:
+        return self._count
+
+    def trace(self) -> Trace:
+        """Everything recorded so far (needs ``keep=True``)."""
+        if not self._keep:
+            raise RuntimeError("this recorder keeps no rows in memory (keep=False)")
+        self.flush()
+        data = np.concatenate(self._rows) if self._rows else np.empty((0, len(self.columns)))
+        return Trace({name: data[:, j].copy() for j, name in enumerate(self.columns)})
+
+    def close(self) -> None:
+        self.flush()
+        if self._file is not None and not self._file.closed:
+            self._file.close()
+
+
+class BusLog:
+    """candump-format log (python-can CanutilsLogWriter) of frames sent and received.
+
+    ``clock`` gives the timestamp written for each frame (control time), ``channel`` the
+    channel name written for frames without one. Thread-safe (start-up runs a receive thread).
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        clock: Callable[[], float],
+        channel: str = "can0",
+        flush_every: int = 500,
+    ) -> None:
+        self._writer = can.CanutilsLogWriter(str(path), channel=channel)
+        self._now = clock
+        self._lock = threading.Lock()
+        self._flush_every = max(1, flush_every)
+        self._pending = 0
+        self.frames = 0
+
+    def log(self, msg: can.Message, received: bool) -> None:
+        msg.is_rx = received
+        msg.timestamp = self._now()
+        with self._lock:
+            self._writer.on_message_received(msg)
+            self.frames += 1
+            self._pending += 1
+            if self._pending >= self._flush_every:
+                self._writer.file.flush()
+                self._pending = 0
+
+    def flush(self) -> None:
+        with self._lock:
+            self._writer.file.flush()
+            self._pending = 0
+
+    def close(self) -> None:
+        with self._lock:
+            self._writer.stop()

@@ -1,0 +1,148 @@
+"""``python -m bridge run``: the bridge against a drive on a CAN interface (real time).
+
+Opens the bus, configures the drive over SDO and brings it to Operation Enabled
+(:mod:`bridge.master`), then produces SYNC from the wall clock and closes the loop every cycle
+until the moves are done (plus ``--hold`` seconds), ``--seconds`` have passed, the axis was
+stopped by a fault, or Ctrl-C. At the end the axis is disabled (controlword "switch on", set
+point 0, latched by one more SYNC). Exit status: 0 done, 1 the axis was stopped by a fault (the
+reason is printed), 2 bad arguments or files.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from plant_sim.axis import AxisConfig
+from regulator import RegulatorConfig
+from virtual_bus import BusConfig, open_bus
+
+from .busload import layout_load
+from .cycle import BridgeState, Command
+from .interpolator import Move
+from .node import Bridge, BridgeConfig
+from .params import BridgeParams
+from .recorder import BusLog, TraceRecorder
+from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
+
+log = logging.getLogger("bridge")
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """What ``python -m bridge run`` was asked to do (validated by the CLI parser)."""
+
+    bus: BusConfig
+    axis: AxisConfig
+    bridge: BridgeConfig
+    moves: tuple[Move, ...] = ()
+    seconds: float | None = None
+    hold_s: float = 1.0
+    regulator_enabled: bool = True
+    beta_t_rad_s: float | None = None
+    trace_path: Path | None = None
+    bus_log_path: Path | None = None
+    time_mode: TimeMode = TimeMode.REAL_TIME
+
+
+@dataclass(frozen=True)
+class RunResult:
+    cycles: int
+    state: BridgeState
+    stop_message: str
+    missed_tpdos: int
+    late_tpdos: int
+    skipped_syncs: int
+
+
+def params_for(options: RunOptions) -> BridgeParams:
+    axis = options.axis
+    base = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
+    reg = RegulatorConfig(
+        kv=base.kv,
+        cycle_s=base.cycle_s,
+        beta_t_rad_s=options.beta_t_rad_s or base.beta_t_rad_s,
+        enabled=options.regulator_enabled,
+    )
+    return BridgeParams.for_axis(axis, reg)
+
+
+def run_bridge(options: RunOptions) -> RunResult:
+    """Run the bridge as described in the module docstring (blocking)."""
+    params = params_for(options)
+    _, load = layout_load(1, params.cycle_s, options.bus.bitrate)
+    if load.load_fraction > 0.8:
+        log.warning(
+            "cyclic PDO traffic alone is %.0f %% of the bus at %d bit/s and %.3g ms "
+            "(python -m bridge busload); SDO and heartbeats may delay the RPDO",
+            100 * load.load_fraction,
+            options.bus.bitrate,
+            params.cycle_s * 1e3,
+        )
+    pacer: Pacer = (
+        RealTimePacer(params.cycle_s)
+        if options.time_mode is TimeMode.REAL_TIME
+        else LockstepPacer(params.cycle_s)
+    )
+    bus = open_bus(options.bus)
+    try:
+        recorder = TraceRecorder(options.trace_path, keep=False) if options.trace_path else None
+        bus_log = None
+        if options.bus_log_path is not None:
+            bus_log = BusLog(options.bus_log_path, pacer.now, channel=options.bus.channel or "can")
+        bridge = Bridge(
+            bus,
+            params,
+            options.axis.kind,
+            pacer,
+            config=options.bridge,
+            recorder=recorder,
+            bus_log=bus_log,
+            keep_timing=True,
+        )
+        try:
+            return _loop(bridge, options, params)
+        finally:
+            bridge.close()
+    finally:
+        bus.shutdown()
+
+
+def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResult:
+    bridge.start()
+    c = bridge.controller
+    for move in options.moves:
+        c.queue_move(move)
+    limit = math.inf if options.seconds is None else options.seconds / params.cycle_s
+    hold_cycles = round(options.hold_s / params.cycle_s)
+    idle = [0]
+
+    def done(b: Bridge) -> bool:
+        if b.controller.state is BridgeState.STOPPED or b.cycle_index >= limit:
+            return True
+        if options.moves and not b.controller.moving:
+            idle[0] += 1
+            return idle[0] > hold_cycles
+        return False
+
+    try:
+        n = bridge.run(until=done)
+    except KeyboardInterrupt:
+        n = bridge.counters.cycles
+        log.warning("interrupted")
+    finally:
+        if c.state in (BridgeState.RUNNING, BridgeState.ENABLING):
+            c.command(Command.DISABLE)
+        # two more cycles: the RPDO "switch on, no motion" and the SYNC that latches it
+        bridge.run(cycles=2)
+    timing = bridge.timing
+    return RunResult(
+        cycles=n,
+        state=c.state,
+        stop_message=c.stop_message,
+        missed_tpdos=bridge.counters.missed,
+        late_tpdos=bridge.counters.late,
+        skipped_syncs=timing.skipped_syncs if timing else 0,
+    )

@@ -1,0 +1,117 @@
+"""``python -m plant_sim diagnose RECORDING.csv --axis AXIS.toml --out DIR``.
+
+Says where and when a recording of a real axis and its nominal model differ, which physics
+of the axis-file table the model leaves out, adds and fits it, and shows the fit improving on
+held-out data. Writes DIR/report.json, DIR/axis_fitted.toml, DIR/fit_before.csv,
+DIR/fit_after.csv and DIR/report.png (see docs/diagnosis.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+
+from ..axis import load_axis
+from ..diagnose.effects import Effect
+from ..diagnose.engine import DiagnosisOptions, diagnose
+from ..diagnose.errors import DiagnosisInputError
+from ..diagnose.replay import prepare_replay
+from ..diagnose.report import write_report
+from ..errors import TraceWarning
+from ..trace import read_trace
+from .simulate import print_warnings
+
+NAME = "diagnose"
+HELP = (
+    "find which physics an axis file leaves out of a recording, fit it, and report "
+    "(report.json, axis_fitted.toml, fit_before/after.csv, report.png)"
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", metavar="RECORDING.csv", help="servo trace (trace-file.md)")
+    parser.add_argument("--axis", required=True, metavar="AXIS.toml", help="nominal axis file")
+    parser.add_argument("--out", required=True, metavar="DIR", help="directory for the report")
+    parser.add_argument(
+        "--validate",
+        metavar="SECOND.csv",
+        help="second recording to score candidates on (default: held-out blocks of the first)",
+    )
+    parser.add_argument(
+        "--alpha", type=float, default=1e-3, help="significance level per candidate (0.001)"
+    )
+    parser.add_argument(
+        "--min-improvement",
+        type=float,
+        default=0.5,
+        help="least held-out cost reduction to name an effect, per cent (0.5)",
+    )
+    parser.add_argument(
+        "--max-effects", type=int, default=3, help="most effects named (rounds of selection, 3)"
+    )
+    parser.add_argument(
+        "--effects",
+        nargs="+",
+        metavar="EFFECT",
+        choices=[e.value for e in Effect],
+        help="only try these effects (default: every effect of the axis-file table)",
+    )
+    parser.add_argument("--jobs", type=int, default=2, help="parallel candidate fits (2)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the global search stage")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    options = DiagnosisOptions(
+        alpha=args.alpha,
+        min_improvement=args.min_improvement / 100.0,
+        max_effects=args.max_effects,
+        jobs=args.jobs,
+        seed=args.seed,
+        effects=tuple(Effect(e) for e in args.effects) if args.effects else tuple(Effect),
+    )
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise DiagnosisInputError(f"--out {out}: exists and is not a directory")
+    axis = load_axis(args.axis)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        recording = read_trace(args.recording)
+        validation = read_trace(args.validate) if args.validate else None
+        # check that axis and recordings fit together before any long work
+        prepare_replay(recording, axis, source=str(args.recording))
+        if validation is not None:
+            prepare_replay(validation, axis, source=str(args.validate))
+    print_warnings(caught)
+    from tqdm import tqdm
+
+    bar = tqdm(
+        desc="diagnose",
+        unit="sim",
+        disable=args.no_progress or not sys.stderr.isatty(),
+        file=sys.stderr,
+    )
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", TraceWarning)  # already printed above
+            warnings.simplefilter("ignore", RuntimeWarning)  # unstable trial parameter sets
+            diagnosis = diagnose(recording, axis, validation, options, bar)
+    finally:
+        bar.close()
+    write_report(diagnosis, out, source=str(args.recording))
+    left = ", ".join(e.value for e in diagnosis.left_out) or "nothing"
+    fits = ", ".join(
+        f"{s} {diagnosis.fit_before[s].fit_percent:.1f} -> {f.fit_percent:.1f} %"
+        for s, f in diagnosis.fit_after.items()
+    )
+    print(f"left out: {left}")
+    print(f"simulation fit (nominal -> fitted): {fits}")
+    for a in diagnosis.ambiguous:
+        print(f"ambiguous: {a.named.value} or {a.alternative.value}; to tell: {a.experiment}")
+    print(
+        f"report: {out / 'report.json'} ({diagnosis.timings_s['total']:.1f} s, "
+        f"{diagnosis.n_simulations} simulations)"
+    )
+    return 0

@@ -1,0 +1,74 @@
+"""Helpers of the bridge tests: the stepped loop without a bus.
+
+:class:`PayloadDrive` is plant_sim's AxisPlant behind the contract's PDO scaling with the
+one-cycle set point delay; :func:`run_loop` closes the loop with a CycleController.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from bridge.cycle import CycleController
+from bridge.layout import RPDO1_STRUCT, TPDO1_STRUCT, TPDO2_STRUCT
+from bridge.params import BridgeParams
+from bridge.scaling import MOTOR_INCREMENTS_PER_RAD, Scaling
+from plant_sim.axis import AxisConfig, load_axis
+from plant_sim.model import AxisPlant, KernelOptions
+from plant_sim.simulate import References
+from regulator import RegulatorConfig
+
+AXIS = load_axis("config/paper_axis.toml")
+
+RATED_TORQUE_NM = 100.0
+OPERATION_ENABLED = 0x0027
+FAULT = 0x0008
+
+
+class PayloadDrive:
+    """AxisPlant behind the contract's PDO scaling; the set point of SYNC k acts at k+1."""
+
+    def __init__(self, axis: AxisConfig) -> None:
+        self.plant = AxisPlant(axis, KernelOptions())
+        self.statusword = OPERATION_ENABLED
+        self.setpoint = 0.0
+        self.load_offset = 0.0
+
+    def tpdos(self) -> tuple[bytes, bytes]:
+        p = self.plant
+        tpdo1 = TPDO1_STRUCT.pack(
+            round(p.motor_position_rad * MOTOR_INCREMENTS_PER_RAD),
+            round((p.load_position + self.load_offset) * 1e9),
+        )
+        tpdo2 = TPDO2_STRUCT.pack(
+            self.statusword,
+            round(p.motor_torque_nm * 1000.0 / RATED_TORQUE_NM),
+            round(p.motor_speed_rad_s * MOTOR_INCREMENTS_PER_RAD),
+        )
+        return tpdo1, tpdo2
+
+    def advance(self, rpdo: bytes, disturbance_nm: float) -> int:
+        self.plant.advance(self.setpoint, disturbance_nm)
+        controlword, increments = RPDO1_STRUCT.unpack(rpdo)
+        self.setpoint = increments / MOTOR_INCREMENTS_PER_RAD
+        return controlword
+
+
+def controller(axis: AxisConfig = AXIS, enabled: bool = True, **changes: object) -> CycleController:
+    reg = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle, enabled=enabled)
+    params = dataclasses.replace(BridgeParams.for_axis(axis, reg), **changes)
+    return CycleController(params, Scaling.for_kind(axis.kind, RATED_TORQUE_NM))
+
+
+def run_loop(c: CycleController, drive: PayloadDrive, refs: References) -> dict[str, np.ndarray]:
+    n = refs.position.size
+    out = {k: np.empty(n) for k in ("fe", "beta", "lambda", "omega_r")}
+    for k in range(n):
+        rpdo = c.step(k * c.params.cycle_s, *drive.tpdos())
+        out["fe"][k] = c.following_error
+        out["beta"][k] = c.vibration_level
+        out["lambda"][k] = c.switching_factor
+        out["omega_r"][k] = c.omega_r
+        drive.advance(bytes(rpdo), refs.disturbance_nm[k])
+    return out

@@ -1,0 +1,210 @@
+"""``python -m bridge``: help, one-line errors with exit 2, busload, eds, run and demo."""
+
+from __future__ import annotations
+
+import json
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from bridge.__main__ import main
+from plant_sim.axis import load_axis
+from plant_sim.drive import DriveConfig, SimulatedDrive, State402
+from plant_sim.trace import read_trace
+from virtual_bus import BusConfig, Interface, open_bus
+
+AXIS_FILE = "config/paper_axis.toml"
+
+
+@pytest.mark.parametrize("command", [[], ["run"], ["demo"], ["busload"], ["bench"], ["eds"]])
+def test_help(command: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main([*command, "--help"])
+    assert info.value.code == 0
+    assert "usage: python -m bridge" in capsys.readouterr().out
+
+
+RUN = ["run", "--interface", "virtual", "--channel", "nobody-here", "--axis", AXIS_FILE]
+
+
+@pytest.mark.parametrize(
+    ("argv", "fragment"),
+    [
+        ([], "required: COMMAND"),
+        (["fly"], "invalid choice"),
+        (["run", "--channel", "x", "--axis", AXIS_FILE], "--interface"),
+        ([*RUN, "--node-id", "200", "--seconds", "1"], "node-ID is 1..127"),
+        ([*RUN, "--move", "0.3,0.05"], "key=value"),
+        ([*RUN, "--move", "target=1,feed=-1"], "feed"),
+        ([*RUN], "give --move, --move-file or --seconds"),
+        ([*RUN, "--seconds", "-1"], "must be a finite number > 0"),
+        ([*RUN[:-1], "missing.toml", "--seconds", "1"], "no such axis file"),
+        ([*RUN, "--move-file", "missing.toml"], "no such move file"),
+        (
+            [
+                "run",
+                "--interface",
+                "udp_multicast",
+                "--channel",
+                "x",
+                "--axis",
+                AXIS_FILE,
+                "--seconds",
+                "1",
+            ],
+            "not allowed",
+        ),
+        ([*RUN, "--bitrate", "100000", "--seconds", "1"], "not a CiA 301 bit rate"),
+        ([*RUN, "--node-id", "2", "--drive-id", "2", "--seconds", "1"], "different node-IDs"),
+        (["busload", "--bitrate", "100000"], "not a CiA 301 bit rate"),
+        (["busload", "--axes", "0"], "must be >= 1"),
+        (["busload", "--cycle-us", "abc"], "not a number"),
+        (["demo"], "--out"),
+        (["bench", "--skip-lockstep", "--skip-realtime"], "nothing to run"),
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line(
+    argv: list[str], fragment: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert fragment in err
+
+
+def test_busload_of_one_axis(capsys: pytest.CaptureFixture[str]) -> None:
+    # Davis et al. worst case: SYNC 55 bits, 8-byte TPDOs 135, 6-byte RPDO 115 = 440 bits
+    assert main(["busload"]) == 0
+    out = capsys.readouterr().out
+    assert "total 440 bits = 880.0 us per cycle" in out
+    assert "bus load 88.0 % (fits)" in out
+    assert main(["busload", "--bitrate", "1000000", "--axes", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "total 1210 bits" in out and "does NOT fit" in out
+
+
+def test_eds_check(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["eds", "--check"]) == 0
+    assert "up to date" in capsys.readouterr().out
+    stale = tmp_path / "bridge.eds"
+    stale.write_text("[FileInfo]\n")
+    assert main(["eds", "--check", "--out", str(stale)]) == 1
+    assert main(["eds", "--out", str(stale)]) == 0
+    assert main(["eds", "--check", "--out", str(stale)]) == 0
+
+
+@pytest.fixture
+def drive_on_virtual_bus() -> Iterator[tuple[str, SimulatedDrive]]:
+    channel = f"cli-{uuid.uuid4().hex[:10]}"
+    bus = open_bus(BusConfig(interface=Interface.VIRTUAL, channel=channel))
+    drive = SimulatedDrive(bus, 2, load_axis(AXIS_FILE), DriveConfig())
+    drive.start()
+    try:
+        yield channel, drive
+    finally:
+        drive.stop()
+        bus.shutdown()
+
+
+def test_run_against_the_simulated_drive(
+    drive_on_virtual_bus: tuple[str, SimulatedDrive], tmp_path: Path
+) -> None:
+    channel, drive = drive_on_virtual_bus
+    trace_path, log_path = tmp_path / "trace.csv", tmp_path / "bus.log"
+    argv = [
+        "run",
+        "--interface",
+        "virtual",
+        "--channel",
+        channel,
+        "--axis",
+        AXIS_FILE,
+        "--move",
+        "target=0.005,feed=0.05",
+        "--hold",
+        "0.3",
+        "--clock",
+        "lockstep",
+        "--trace",
+        str(trace_path),
+        "--bus-log",
+        str(log_path),
+    ]
+    assert main(argv) == 0
+    assert drive.plant.load_position == pytest.approx(0.005, abs=2e-5)
+    assert drive.state is State402.SWITCHED_ON  # disabled at the end, latched by a SYNC
+    trace = read_trace(trace_path)
+    assert len(trace) == drive.sync_count
+    assert trace["position_reference"][-1] == pytest.approx(0.005)
+    frames = list(can.CanutilsLogReader(str(log_path)))
+    ids = [f.arbitration_id for f in frames]
+    assert ids.count(0x080) == drive.sync_count
+    assert 0x602 in ids and 0x582 in ids  # the SDO start-up is in the log
+    assert frames[-1].arbitration_id == 0x202 and bytes(frames[-1].data[:2]) == b"\x07\x00"
+
+
+def test_run_exits_1_when_a_fault_stops_the_axis(
+    drive_on_virtual_bus: tuple[str, SimulatedDrive], capsys: pytest.CaptureFixture[str]
+) -> None:
+    channel, _ = drive_on_virtual_bus
+    # 0.3 m/s needs 12 mm of following error (eq. 1), above the 5 mm limit
+    argv = [
+        "run",
+        "--interface",
+        "virtual",
+        "--channel",
+        channel,
+        "--axis",
+        AXIS_FILE,
+        "--move",
+        "target=0.5,feed=0.3",
+        "--clock",
+        "lockstep",
+    ]
+    assert main(argv) == 1
+    out = capsys.readouterr().out
+    assert "state STOPPED" in out and "following error" in out
+
+
+@pytest.mark.slow
+def test_demo_writes_the_paper_outputs_and_reproduces_the_offline_run(
+    bus_mode: Interface, tmp_path: Path
+) -> None:
+    """The 6 s section X over the bus: summary.json and figures as `plant_sim paper`, traces,
+    bus logs; the loop matches the offline simulation within the stated tolerances."""
+    bus = "virtual" if bus_mode is Interface.VIRTUAL else "socketcan"
+    assert main(["demo", "--out", str(tmp_path), "--bus", bus]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    for name in ("fig8.png", "fig9.png", "ordinary.csv", "regulated.csv", "bus_ordinary.log"):
+        assert (tmp_path / name).stat().st_size > 1000, name
+    runs = summary["bridge"]["runs"]
+    ordinary, regulated = (runs[n]["offline_comparison"] for n in ("ordinary", "regulated"))
+    # regulated: nm; ordinary (a chaotic limit cycle): µm of a 118 µm oscillation
+    assert regulated["max_following_error_difference"] < 50e-9
+    assert regulated["max_beta_difference_rad_s"] < 2e-5
+    assert regulated["max_lambda_difference"] < 2e-5
+    assert ordinary["max_following_error_difference"] < 30e-6
+    assert ordinary["max_beta_difference_rad_s"] < 0.05 * ordinary["max_beta_rad_s"]
+    assert ordinary["max_lambda_difference"] == 0.0
+    for name in runs:
+        assert runs[name]["pdo_counters"]["missed"] == 0
+    # the paper's result: the regulator removes the limit cycle
+    assert summary["runs"]["ordinary"]["dominant_frequency_hz"] is not None
+    assert summary["runs"]["regulated"]["dominant_frequency_hz"] is None
+    assert summary["p2p_reduction"] > 0.9
+    trace = read_trace(tmp_path / "regulated.csv")
+    assert len(trace) == 7000 and np.all(np.diff(trace.time) > 0)
+    syncs = sum(
+        1
+        for f in can.CanutilsLogReader(str(tmp_path / "bus_regulated.log"))
+        if f.arbitration_id == 0x080
+    )
+    assert syncs == 7000
