@@ -7,8 +7,7 @@ from pathlib import Path
 import pytest
 
 from plant_sim.axis import AxisConfig, load_axis
-from plant_sim.commands.paper import LIMIT_CYCLE_VISCOUS
-from plant_sim.report import summarize
+from plant_sim.report import LIMIT_CYCLE_VISCOUS, summarize
 from plant_sim.scenarios import run_section_x
 
 PAPER = Path(__file__).resolve().parents[1] / "config" / "paper_axis.toml"
