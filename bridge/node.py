@@ -175,6 +175,9 @@ class Bridge:
         #: Called with k before SYNC k is sent (a harness hook, e.g. the simulated drive's
         #: disturbance input in the demo); None: nothing.
         self.before_sync: Callable[[int], None] | None = None
+        #: lockstep with a simulated peer in this thread (SimulatedDrive.polled): called right
+        #: after the SYNC has gone out, so the peer answers before the bridge waits
+        self.peer_poll: Callable[[], int] | None = None
 
     # --- frames -----------------------------------------------------------------------------
     def dispatch(self, msg: can.Message) -> None:
@@ -293,6 +296,8 @@ class Bridge:
         sync_wall = wall()
         self._window_open = True
         self.port.send(self._sync_msg)
+        if self.peer_poll is not None:
+            self.peer_poll()
         end = pacer.window_end(sync_wall)
         if self._record_pending:  # the previous row, while the drive answers the SYNC
             self.flush_record()

@@ -79,6 +79,7 @@ def simulated_axis(
     keep_timing: bool = False,
     configure_drive: bool = True,
     wrap_bridge_bus: Callable[[can.BusABC], can.BusABC] | None = None,
+    inline_drive: bool = True,
 ) -> Iterator[SimulatedAxis]:
     """Bridge + simulated drive of ``axis`` on one bus, started (see the module docstring).
 
@@ -87,6 +88,10 @@ def simulated_axis(
     fault: faults injected on the bridge's end of the bus. trace_path / keep_trace /
     disturbance: the trace recorder; bus_log_path: candump log of the bridge's traffic.
     wrap_bridge_bus: wraps the bridge's end of the bus (outermost; tests tamper with frames).
+    inline_drive: lockstep on the in-process virtual bus only: after start-up the drive
+    receives in the loop's thread (:meth:`SimulatedDrive.polled`), the frames still going over
+    the bus. On vcan0 a frame reaches the other socket asynchronously, so there the drive keeps
+    its own thread.
     """
     if interface is Interface.AUTO:
         raise ValueError("simulated_axis needs Interface.VIRTUAL or Interface.SOCKETCAN")
@@ -140,6 +145,11 @@ def simulated_axis(
         drive.start()
         stack.callback(drive.stop)
         bridge.start(configure_drive=configure_drive)
+        if time_mode is TimeMode.LOCKSTEP and inline_drive and interface is Interface.VIRTUAL:
+            # configured over SDO with the drive on its own thread; now the loop's thread
+            # runs it too: same frames on the same bus, no thread wake-ups per cycle
+            bridge.peer_poll = stack.enter_context(drive.polled())
+            stack.callback(setattr, bridge, "peer_poll", None)
         yield SimulatedAxis(bridge, drive, bridge_bus, drive_bus, name)
 
 

@@ -276,3 +276,25 @@ def test_rewriting_the_present_value_is_accepted_while_valid(axis: AxisConfig) -
             sdo[0x1A01][sub].raw = sdo[0x1A01][sub].raw
         sdo[0x1801][1].raw = 0x282
         assert sdo[0x1A01][0].raw == 3
+
+
+def test_polled_drive_answers_only_when_polled_and_resumes_its_thread(axis: AxisConfig) -> None:
+    """SimulatedDrive.polled(): the notifier pauses (a SYNC stays unanswered), poll() hands
+    the waiting frames to the drive (TPDOs come back, one physics cycle ran), and on exit the
+    drive answers on its own thread again."""
+    with virtual_rig(axis) as rig:
+        probe = rig.probe
+        probe.nmt(NmtCommand.START)
+        probe.sync_and_collect([TPDO1, TPDO2])
+        cycles = rig.drive.sync_count
+        with rig.drive.polled() as poll:
+            probe.drain()
+            probe.sync()
+            assert probe.bus.recv(0.05) is None  # nobody received the SYNC
+            assert poll() == 1
+            got = {m.arbitration_id for m in probe.drain()}
+            assert {TPDO1, TPDO2} <= got
+            assert rig.drive.sync_count == cycles + 1
+            assert poll() == 0
+        assert set(probe.sync_and_collect([TPDO1, TPDO2])) == {TPDO1, TPDO2}
+        assert rig.drive.sync_count == cycles + 2

@@ -27,10 +27,11 @@ only RPDO contents wait for the next SYNC.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from types import TracebackType
 
 import can
@@ -180,6 +181,44 @@ class SimulatedDrive:
             )
         self._nmt.boot()
         return self
+
+    @contextlib.contextmanager
+    def polled(self) -> Iterator[Callable[[], int]]:
+        """Lockstep harnesses: receive in the caller's thread instead of the notifier thread.
+
+        Pauses the drive's own notifier and yields ``poll()``, which hands every frame waiting
+        on the drive's end of the bus to the same canopen listeners the notifier would and
+        returns how many it handled. Frames still travel over the bus; only the thread that
+        receives them changes, which removes two thread wake-ups per cycle (~80 µs each on a
+        small VM). Only for a drive that owns its network (built on a bus); the notifier
+        restarts on exit.
+        """
+        if not self._own_network or not self._started:
+            raise DriveStateError("polled() needs a started drive built on its own bus")
+        network = self._network
+        bus = network.bus
+        assert bus is not None
+        if network.notifier is not None:
+            network.notifier.stop(timeout=5.0)
+            network.notifier = None
+        listeners = list(network.listeners)
+        recv = bus.recv
+
+        def poll() -> int:
+            n = 0
+            while (msg := recv(0.0)) is not None:
+                for listener in listeners:
+                    listener.on_message_received(msg)
+                n += 1
+            return n
+
+        try:
+            yield poll
+        finally:
+            if self._started:
+                network.notifier = can.Notifier(
+                    bus, network.listeners, self.config.notifier_timeout_s
+                )
 
     def stop(self) -> None:
         """Leave the bus: heartbeat, subscriptions and (own) notifier thread stop. The bus
