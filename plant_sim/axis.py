@@ -413,8 +413,8 @@ def load_axis(path: str | Path) -> AxisConfig:
 def _fmt(value: object) -> str:
     if isinstance(value, Enum):
         return f'"{value.value}"'
-    if isinstance(value, float):
-        return repr(value)
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        return repr(float(value))  # also numpy scalars: repr(np.float64) is not TOML
     return str(value)
 
 

@@ -39,6 +39,15 @@ def test_dump_and_load_round_trip(tmp_path: Path) -> None:
     assert load_axis(path) == axis
 
 
+def test_dump_writes_numpy_scalars_as_toml_numbers(tmp_path: Path) -> None:
+    import numpy as np
+
+    axis = load_axis(CONFIG / "paper_axis.toml").with_values({"friction.coulomb": np.float64(1.5)})
+    path = tmp_path / "np.toml"
+    path.write_text(dump_axis(axis))
+    assert load_axis(path).friction.coulomb == 1.5
+
+
 def test_rotary_axis_uses_load_inertia(tmp_path: Path) -> None:
     text = PAPER_TEXT.replace('kind = "linear"', 'kind = "rotary"').replace(
         "load_mass = 6554.2", "load_inertia = 12.0"

@@ -1,0 +1,148 @@
+"""Candidate effects: names and keys, starting values from the data (effects.py)."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from plant_sim.axis import AxisConfig, AxisKind, Control, Friction, Mechanics, PositionFeedback
+from plant_sim.diagnose.effects import (
+    EFFECT_KEYS,
+    DataScales,
+    Effect,
+    Evidence,
+    candidate_specs,
+    contact_antiresonance,
+    effects_in,
+    experiment_for,
+    inverse_dynamics,
+    periodic_peaks,
+)
+from plant_sim.diagnose.replay import prepare_replay, replay
+from plant_sim.model import KernelOptions, default_substeps
+from plant_sim.simulate import References, simulate
+from plant_sim.trace import Trace
+
+SPEC = Path("/work/shared/spec/axis-file.md")
+
+
+def rigid_axis() -> AxisConfig:
+    return AxisConfig(
+        kind=AxisKind.LINEAR,
+        transmission_ratio=2 * math.pi / 0.01,
+        mechanics=Mechanics(motor_inertia=1.2e-4, screw_inertia=0.8e-4, load_mass=25.0),
+        friction=Friction(coulomb=0.08, viscous=0.4),
+        control=Control(
+            kv=30.0,
+            ksp=0.1,
+            tsi=0.008,
+            current_lag=0.0002,
+            position_feedback=PositionFeedback.MOTOR,
+        ),
+    )
+
+
+@pytest.mark.skipif(not SPEC.exists(), reason="shared spec not present")
+def test_effect_names_and_keys_are_the_specs_table() -> None:
+    """Second source: the table of axis-file.md, parsed."""
+    text = SPEC.read_text(encoding="utf-8")
+    rows = re.findall(r"^\| `(\w+)` \| (.+?) \|$", text, flags=re.MULTILINE)
+    table: dict[str, list[str]] = {}
+    for name, keys in rows:
+        parts = [k.strip() for k in keys.split(",")]
+        section = parts[0].split(".")[0]
+        table[name] = [k if "." in k and not k.startswith(".") else f"{section}{k}" for k in parts]
+    assert set(table) == {e.value for e in Effect}
+    for effect in Effect:
+        assert list(EFFECT_KEYS[effect]) == table[effect.value], effect
+
+
+def test_effects_in_reads_present_keys() -> None:
+    axis = rigid_axis()
+    assert effects_in(axis) == {Effect.COULOMB_FRICTION, Effect.VISCOUS_FRICTION}
+    more = axis.with_values({"control.torque_limit": 3.0, "disturbance.constant_torque": 0.0})
+    assert Effect.TORQUE_SATURATION in effects_in(more)
+    assert Effect.CONSTANT_LOAD_TORQUE in effects_in(more)  # present with value 0: in the model
+
+
+def test_every_pair_has_an_experiment() -> None:
+    for a in Effect:
+        for b in Effect:
+            if a is not b:
+                assert len(experiment_for(a, b)) > 20
+
+
+def _recording(axis: AxisConfig, seconds: float = 8.0) -> Trace:
+    cycle = axis.control.position_cycle
+    t = np.arange(round(seconds / cycle)) * cycle
+    x = 0.1 + 0.08 * np.sin(2 * np.pi * t / 2.0) + 0.02 * np.sin(2 * np.pi * t / 0.45)
+    opts = KernelOptions(substeps=default_substeps(axis))
+    sim = simulate(axis, References.from_position(x, cycle), options=opts)
+    cols = (
+        "time",
+        "position_reference",
+        "motor_position",
+        "load_position",
+        "motor_speed",
+        "motor_torque",
+    )
+    return Trace({c: sim[c][::2] for c in cols})
+
+
+def test_inverse_dynamics_starting_values() -> None:
+    """A recording whose torque is the rigid-body balance τ = J·k_r·a + c·sign(v) + b·v + τ0
+    exactly: the regression returns J (as the load mass), c, b and τ0."""
+    axis = rigid_axis()
+    kr = axis.transmission_ratio
+    t = np.arange(0.0, 8.0, 0.002)
+    w1, w2 = 2 * np.pi / 2.0, 2 * np.pi / 0.45
+    x = 0.1 + 0.08 * np.sin(w1 * t) + 0.02 * np.sin(w2 * t)
+    v = 0.08 * w1 * np.cos(w1 * t) + 0.02 * w2 * np.cos(w2 * t)
+    a = -0.08 * w1**2 * np.sin(w1 * t) - 0.02 * w2**2 * np.sin(w2 * t)
+    tau = axis.total_inertia * kr * a + 0.08 * np.sign(v) + 0.4 * v + 0.01
+    rec = Trace({"time": t, "position_reference": x, "motor_position": kr * x, "motor_torque": tau})
+    inp = prepare_replay(rec, axis)
+    from plant_sim.diagnose.effects import data_scales
+
+    est = inverse_dynamics(inp, axis, data_scales(inp))
+    assert est["mechanics.load_mass"] == pytest.approx(25.0, rel=0.02)
+    assert est["friction.coulomb"] == pytest.approx(0.08, rel=0.02)
+    assert est["friction.viscous"] == pytest.approx(0.4, rel=0.02)
+    assert est["disturbance.constant_torque"] == pytest.approx(0.01, abs=1e-3)
+
+
+def test_periodic_peaks_find_period_amplitude_phase() -> None:
+    rng = np.random.default_rng(1)
+    n = 20_000
+    t = np.arange(n) * 0.002
+    x = 0.15 + 0.1 * np.sin(2 * np.pi * t / 7.0)
+    v = np.gradient(x, t)
+    amp, period, phase = 0.02, 0.011, 0.9
+    r = amp * np.sin(2 * np.pi * x / period + phase) + 0.02 * rng.standard_normal(n)
+    scales = DataScales(
+        1.0, 1.0, float(np.max(np.abs(v))), float(np.ptp(x)), 0.01, 0.002, v, np.gradient(v, t), x
+    )
+    (p, a, b), *_ = periodic_peaks(r, scales)
+    assert p == pytest.approx(period, rel=0.01)
+    assert math.hypot(a, b) == pytest.approx(amp, rel=0.1)
+    assert math.atan2(b, a) == pytest.approx(phase, abs=0.15)
+
+
+def test_backlash_on_a_rigid_model_adds_a_stiff_contact() -> None:
+    axis = rigid_axis()
+    inp = prepare_replay(_recording(axis), axis)
+    from plant_sim.diagnose.effects import data_scales
+
+    ev = Evidence(inp, replay(axis, inp), data_scales(inp))
+    specs, notes = candidate_specs(Effect.BACKLASH, axis, axis, ev)
+    base = specs[0].base
+    assert base.mechanics.antiresonance == pytest.approx(contact_antiresonance(axis))
+    # the contact is much stiffer than the speed loop is fast, and integrable (<= 3 substeps)
+    assert contact_antiresonance(axis) > 5 * axis.control.ksp / axis.total_inertia
+    assert specs[0].options.substeps <= 3
+    assert any("antiresonance" in n for n in notes)
+    assert [p.key for p in specs[0].parameters] == ["mechanics.backlash"]

@@ -1,0 +1,118 @@
+"""Bounded multi-start simulation-error fitting (plant_sim/diagnose/fit.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from plant_sim.axis import AxisConfig, AxisKind, Control, Friction, Mechanics, PositionFeedback
+from plant_sim.diagnose.effects import data_scales, inverse_dynamics, nominal_spec
+from plant_sim.diagnose.errors import DiagnosisOptionError
+from plant_sim.diagnose.fit import (
+    PERIODIC_COS,
+    PERIODIC_SIN,
+    DiscreteParameter,
+    FitSpec,
+    Objective,
+    Parameter,
+    axis_with,
+    fit,
+    periodic_pseudo,
+)
+from plant_sim.diagnose.replay import prepare_replay
+from plant_sim.model import KernelOptions
+from plant_sim.simulate import References, simulate
+from plant_sim.trace import Trace
+
+
+def truth_axis() -> AxisConfig:
+    return AxisConfig(
+        kind=AxisKind.LINEAR,
+        transmission_ratio=2 * math.pi / 0.01,
+        mechanics=Mechanics(motor_inertia=1.2e-4, screw_inertia=0.8e-4, load_mass=25.0),
+        friction=Friction(coulomb=0.08, viscous=0.4),
+        control=Control(
+            kv=30.0,
+            ksp=0.1,
+            tsi=0.008,
+            current_lag=0.0002,
+            position_feedback=PositionFeedback.MOTOR,
+        ),
+    )
+
+
+def recording(axis: AxisConfig, seconds: float = 6.0) -> Trace:
+    cycle = axis.control.position_cycle
+    t = np.arange(round(seconds / cycle)) * cycle
+    x = 0.03 * np.sin(2 * np.pi * t / 1.5) + 0.02 * np.sin(2 * np.pi * t / 0.7)
+    sim = simulate(axis, References.from_position(x, cycle), options=KernelOptions(substeps=1))
+    cols = ("time", "position_reference", "motor_position", "motor_speed", "motor_torque")
+    return Trace({c: sim[c][::2] for c in cols})
+
+
+def objective(axis: AxisConfig, rec: Trace) -> Objective:
+    inp = prepare_replay(rec, axis)
+    scales = {s: float(np.std(inp.compared(s))) for s in inp.signals}
+    return Objective(inp, np.ones(inp.n_samples, dtype=bool), scales)
+
+
+def test_parameter_transforms_and_bounds() -> None:
+    p = Parameter("mechanics.load_mass", 10.0, 40.0, 25.0, 20.0, log=True)
+    assert p.from_u(p.to_u(33.0)) == pytest.approx(33.0)
+    assert p.from_u(10.0) == 40.0  # clipped to the bound
+    assert Parameter("friction.coulomb", 0.0, 1.0, 5.0, 0.1).start == 1.0  # start clipped
+    with pytest.raises(DiagnosisOptionError, match="low < high"):
+        Parameter("friction.coulomb", 1.0, 0.0, 0.5, 0.1)
+    with pytest.raises(DiagnosisOptionError, match="log scale"):
+        Parameter("friction.coulomb", 0.0, 1.0, 0.5, 0.1, log=True)
+
+
+def test_periodic_pseudo_keys_round_trip() -> None:
+    base = truth_axis().with_values(
+        {"disturbance.periodic_amplitude": 0.0, "disturbance.periodic_period": 0.01}
+    )
+    axis = axis_with(base, {PERIODIC_COS: 0.03, PERIODIC_SIN: -0.04})
+    assert axis.disturbance.periodic_amplitude == pytest.approx(0.05)
+    assert axis.disturbance.periodic_phase == pytest.approx(math.atan2(-0.04, 0.03))
+    back = periodic_pseudo(axis)
+    assert back[PERIODIC_COS] == pytest.approx(0.03)
+    assert back[PERIODIC_SIN] == pytest.approx(-0.04)
+
+
+@pytest.mark.parametrize("factor", [0.6, 1.6])
+def test_refit_recovers_parameters_from_a_bad_start(factor: float) -> None:
+    """Noise-free recording of the truth; the nominal is off by -40 % / +60 % in mass and
+    friction: the bounded multi-start fit lands on the truth (robust to the start)."""
+    truth = truth_axis()
+    rec = recording(truth)
+    nominal = truth.with_values(
+        {
+            "mechanics.load_mass": 25.0 * factor,
+            "friction.coulomb": 0.08 * factor,
+            "friction.viscous": 0.4 / factor,
+        }
+    )
+    obj = objective(nominal, rec)
+    inp = obj.inp
+    scales = data_scales(inp)
+    spec = nominal_spec(nominal, scales, inverse_dynamics(inp, nominal, scales), n_global=6)
+    result = fit(spec, obj, max_nfev=30, n_starts=2)
+    assert result.values["mechanics.load_mass"] == pytest.approx(25.0, rel=0.02)
+    assert result.values["friction.coulomb"] == pytest.approx(0.08, rel=0.05)
+    assert result.values["friction.viscous"] == pytest.approx(0.4, rel=0.05)
+    assert result.cost < 1e-4
+
+
+def test_discrete_delay_is_profiled() -> None:
+    """A dead time of 3 speed cycles in the truth is found on the grid of whole cycles."""
+    truth = truth_axis().with_values({"control.delay": 3 * 0.000125})
+    rec = recording(truth, seconds=3.0)
+    base = truth_axis()
+    obj = objective(base, rec)
+    grid = tuple(n * 0.000125 for n in (1, 2, 3, 4, 6, 8))
+    spec = FitSpec(base, (), discrete=DiscreteParameter("control.delay", grid, grid[0]))
+    result = fit(spec, obj)
+    assert result.values["control.delay"] == pytest.approx(3 * 0.000125)
+    assert result.cost < 1e-12
