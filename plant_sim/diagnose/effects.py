@@ -537,6 +537,15 @@ def candidate_specs(
                 wa = math.sqrt(1.0 / slope / model.mechanics.load_mass)
                 guesses.insert(0, min(wmax * 0.99, max(wa, 2.0 * model.control.kv)))
         lo = max(2.0 * model.control.kv, 0.1 * bw)
+        if not lo < wmax:
+            # e.g. all inertia lumped into the load (motor_inertia a placeholder): an elastic
+            # element would resonate beyond what the kernel integrates at this speed cycle
+            notes.append(
+                f"compliance not tried: with this inertia split an elastic element needs "
+                f"omega_a in [{lo:.3g}, {wmax:.3g}] rad/s, an empty range (give "
+                f"mechanics.motor_inertia its real value to test compliance)"
+            )
+            return [], notes
         wa_p = Parameter("mechanics.antiresonance", lo, wmax, guesses[0], guesses[0], log=True)
         xi_p = Parameter("mechanics.damping_ratio", 0.005, 0.7, 0.05, 0.05, log=True)
         on = model.with_values(
