@@ -8,8 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from axes import slide_axis
 
-from plant_sim.axis import AxisConfig, AxisKind, Control, Friction, Mechanics, PositionFeedback
+from plant_sim.axis import AxisConfig
 from plant_sim.diagnose.effects import (
     EFFECT_KEYS,
     DataScales,
@@ -27,23 +28,11 @@ from plant_sim.model import KernelOptions, default_substeps
 from plant_sim.simulate import References, simulate
 from plant_sim.trace import Trace
 
-SPEC = Path("/work/shared/spec/axis-file.md")
+SPEC = Path(__file__).resolve().parents[2] / "shared" / "spec" / "axis-file.md"
 
 
 def rigid_axis() -> AxisConfig:
-    return AxisConfig(
-        kind=AxisKind.LINEAR,
-        transmission_ratio=2 * math.pi / 0.01,
-        mechanics=Mechanics(motor_inertia=1.2e-4, screw_inertia=0.8e-4, load_mass=25.0),
-        friction=Friction(coulomb=0.08, viscous=0.4),
-        control=Control(
-            kv=30.0,
-            ksp=0.1,
-            tsi=0.008,
-            current_lag=0.0002,
-            position_feedback=PositionFeedback.MOTOR,
-        ),
-    )
+    return slide_axis()
 
 
 @pytest.mark.skipif(not SPEC.exists(), reason="shared spec not present")

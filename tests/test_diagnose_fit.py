@@ -6,8 +6,9 @@ import math
 
 import numpy as np
 import pytest
+from axes import slide_axis
 
-from plant_sim.axis import AxisConfig, AxisKind, Control, Friction, Mechanics, PositionFeedback
+from plant_sim.axis import AxisConfig
 from plant_sim.diagnose.effects import data_scales, inverse_dynamics, nominal_spec
 from plant_sim.diagnose.errors import DiagnosisOptionError
 from plant_sim.diagnose.fit import (
@@ -28,19 +29,7 @@ from plant_sim.trace import Trace
 
 
 def truth_axis() -> AxisConfig:
-    return AxisConfig(
-        kind=AxisKind.LINEAR,
-        transmission_ratio=2 * math.pi / 0.01,
-        mechanics=Mechanics(motor_inertia=1.2e-4, screw_inertia=0.8e-4, load_mass=25.0),
-        friction=Friction(coulomb=0.08, viscous=0.4),
-        control=Control(
-            kv=30.0,
-            ksp=0.1,
-            tsi=0.008,
-            current_lag=0.0002,
-            position_feedback=PositionFeedback.MOTOR,
-        ),
-    )
+    return slide_axis()
 
 
 def recording(axis: AxisConfig, seconds: float = 6.0) -> Trace:

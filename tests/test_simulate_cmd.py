@@ -2,20 +2,15 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from axes import slide_axis
 
 from plant_sim.__main__ import main
 from plant_sim.axis import (
     AxisConfig,
-    AxisKind,
-    Control,
-    Friction,
-    Mechanics,
-    PositionFeedback,
     dump_axis,
 )
 from plant_sim.model import KernelOptions
@@ -24,19 +19,7 @@ from plant_sim.trace import Trace, read_trace
 
 
 def axis() -> AxisConfig:
-    return AxisConfig(
-        kind=AxisKind.LINEAR,
-        transmission_ratio=2 * math.pi / 0.01,
-        mechanics=Mechanics(motor_inertia=1.2e-4, screw_inertia=0.8e-4, load_mass=25.0),
-        friction=Friction(coulomb=0.08, viscous=0.4),
-        control=Control(
-            kv=30.0,
-            ksp=0.1,
-            tsi=0.008,
-            current_lag=0.0002,
-            position_feedback=PositionFeedback.MOTOR,
-        ),
-    )
+    return slide_axis()
 
 
 @pytest.fixture
