@@ -27,7 +27,6 @@ import numpy as np
 from plant_sim.axis import AxisConfig
 from plant_sim.drive import DriveConfig, SimulatedDrive
 from plant_sim.drive import TimeMode as DriveTimeMode
-from plant_sim.model import AxisPlant
 from plant_sim.simulate import References
 from plant_sim.trace import Trace
 from virtual_bus import BusConfig, FaultConfig, FaultInjectingBus, Interface, open_bus
@@ -109,9 +108,6 @@ def simulated_axis(
         if time_mode is TimeMode.LOCKSTEP
         else DriveTimeMode.REAL_TIME
     )
-    # The drive's first physics step loads the compiled kernel (numba cache, ~0.2 s); do it
-    # here so that the first SYNCs are answered at the drive's normal pace.
-    AxisPlant(axis).advance(0.0)
     with contextlib.ExitStack() as stack:
         raw_bridge_bus = open_bus(bus_config)
         stack.callback(raw_bridge_bus.shutdown)

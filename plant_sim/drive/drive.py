@@ -160,7 +160,12 @@ class SimulatedDrive:
     # ------------------------------------------------------------------------------------------
     def start(self) -> SimulatedDrive:
         """Join the bus, finish initialisation (CiA 402 transition 1), send the boot-up
-        message and enter NMT Pre-operational with the heartbeat running."""
+        message and enter NMT Pre-operational with the heartbeat running.
+
+        Like a real drive, it finishes booting before it announces itself: the compiled
+        physics is loaded (numba cache, or compiled on a fresh checkout: seconds) on a
+        throw-away plant first, so the first SYNC is answered at the normal pace."""
+        AxisPlant(self._plant.axis).advance(0.0)
         with self._lock:
             if self._started:
                 raise DriveStateError(f"drive {self.node_id} is already started")
