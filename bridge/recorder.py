@@ -3,9 +3,10 @@
 * :class:`TraceRecorder`: one row per cycle, the columns of ``shared/spec/trace-file.md``
   (time, position_reference, speed_setpoint, motor_position, motor_speed, load_position,
   motor_torque, disturbance when known) plus beta, lambda and the loop's own values
-  (:data:`EXTRA_COLUMNS`); formatted row by row after the set point has gone out, written
-  in whole blocks of ``flush_rows`` rows (a killed recorder leaves a file readable up to its
-  last block); optionally kept in memory for :meth:`TraceRecorder.trace`.
+  (:data:`EXTRA_COLUMNS`); recorded after the set point has gone out and written through
+  :class:`plant_sim.trace.TraceWriter` in whole blocks of ``flush_rows`` rows (a killed
+  recorder leaves a file readable up to its last block); optionally kept in memory for
+  :meth:`TraceRecorder.trace`.
 * :class:`BusLog`: every frame sent or received, in ``candump -L`` format through python-can's
   :class:`can.io.CanutilsLogWriter`, timestamps in control time, flushed every
   ``flush_every`` frames.
@@ -16,13 +17,11 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import BinaryIO
 
 import can
 import numpy as np
 
-from plant_sim.errors import TraceFileError
-from plant_sim.trace import Trace
+from plant_sim.trace import Trace, TraceWriter
 
 from .cycle import CycleController
 
@@ -49,14 +48,7 @@ class TraceRecorder:
     path: CSV file or None (memory only). keep: keep every row in memory for :meth:`trace`.
     disturbance: known disturbance per cycle (N·m at the motor, the spec's ``disturbance``
     column; rows beyond its end get 0), or None when the bridge cannot know it.
-    flush_rows: rows per block; a block reaches the file in one write.
-
-    Each row is formatted when recorded (``repr`` of every value, as
-    :class:`plant_sim.trace.TraceWriter` writes them, so the cost is spread over the cycles)
-    and every ``flush_rows`` rows the block goes to the file in a single unbuffered write:
-    the file only ever holds whole rows, so a recorder killed mid-run leaves a trace that
-    reads back up to its last block. (TraceWriter itself writes through an 8 KiB text buffer
-    that can reach the file in the middle of a row.)
+    flush_rows: rows per block; a block reaches the file in one write (TraceWriter).
     """
 
     def __init__(
@@ -70,16 +62,11 @@ class TraceRecorder:
         self.columns = (
             BASE_COLUMNS + (("disturbance",) if disturbance is not None else ()) + EXTRA_COLUMNS
         )
-        if "time" not in self.columns:  # pragma: no cover - guarded by the constant
-            raise TraceFileError("a trace needs a 'time' column", column="time")
         self._dist = None if disturbance is None else np.asarray(disturbance, dtype=float)
-        self._fmt = ",".join(["%r"] * len(self.columns)) + "\n"
-        self._file: BinaryIO | None = None
-        if path is not None:
-            self._file = open(path, "wb", buffering=0)  # noqa: SIM115 - closed in close()
-            self._file.write((",".join(self.columns) + "\n").encode())
-        self._lines: list[str] = []
         self._flush_rows = max(1, flush_rows)
+        self._writer = (
+            None if path is None else TraceWriter(path, self.columns, flush_every=self._flush_rows)
+        )
         self._keep = keep
         self._block = np.empty((self._flush_rows, len(self.columns)))
         self._in_block = 0
@@ -113,8 +100,8 @@ class TraceRecorder:
         else:
             values = head + tail
         self._count += 1
-        if self._file is not None:
-            self._lines.append(self._fmt % values)
+        if self._writer is not None:
+            self._writer.write_row(values)
         if self._keep:
             self._block[self._in_block] = values
         self._in_block += 1
@@ -126,9 +113,8 @@ class TraceRecorder:
         if self._keep and self._in_block:
             self._rows.append(self._block[: self._in_block].copy())
         self._in_block = 0
-        if self._file is not None and self._lines:
-            self._file.write("".join(self._lines).encode())
-            self._lines.clear()
+        if self._writer is not None:
+            self._writer.flush()
 
     @property
     def keeps_rows(self) -> bool:
@@ -149,8 +135,8 @@ class TraceRecorder:
 
     def close(self) -> None:
         self.flush()
-        if self._file is not None and not self._file.closed:
-            self._file.close()
+        if self._writer is not None:
+            self._writer.close()
 
 
 class BusLog:
