@@ -18,11 +18,12 @@ drive's abort code) or timed out (:class:`~bridge.errors.DriveTimeoutError`).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import struct
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import canopen
@@ -107,42 +108,37 @@ class DriveMaster:
     def _what(self, index: int, subindex: int) -> str:
         return f"drive {self.drive.id} object {index:04X}h:{subindex:02X}"
 
-    def write(self, index: int, subindex: int, data: bytes, what: str = "") -> None:
+    @contextlib.contextmanager
+    def _sdo(self, verb: str, index: int, subindex: int, what: str) -> Iterator[None]:
+        """Count one transfer; turn canopen's SDO errors into the bridge's, with context."""
         self.transfers += 1
+        where = f"{self._what(index, subindex)}{what}"
         try:
-            self.drive.sdo.download(index, subindex, data)
+            yield
         except SdoAbortedError as exc:
             raise DriveSetupError(
-                f"{self._what(index, subindex)}{what}: write refused, SDO abort {exc}",
+                f"{where}: {verb} refused, SDO abort {exc}",
                 index=index,
                 subindex=subindex,
                 abort_code=exc.code,
             ) from None
         except SdoCommunicationError as exc:
             raise DriveTimeoutError(
-                f"{self._what(index, subindex)}{what}: no SDO answer ({exc}) after "
-                f"{self.setup.sdo_retries} tries of {self.setup.sdo_timeout_s:g} s",
+                f"{where}: no SDO answer ({exc}) after {self.setup.sdo_retries} tries of "
+                f"{self.setup.sdo_timeout_s:g} s",
                 index=index,
                 subindex=subindex,
             ) from None
 
+    def write(self, index: int, subindex: int, data: bytes, what: str = "") -> None:
+        with self._sdo("write", index, subindex, what):
+            self.drive.sdo.download(index, subindex, data)
+
     def read(self, index: int, subindex: int, what: str = "") -> bytes:
-        self.transfers += 1
-        try:
-            return self.drive.sdo.upload(index, subindex)
-        except SdoAbortedError as exc:
-            raise DriveSetupError(
-                f"{self._what(index, subindex)}{what}: read refused, SDO abort {exc}",
-                index=index,
-                subindex=subindex,
-                abort_code=exc.code,
-            ) from None
-        except SdoCommunicationError as exc:
-            raise DriveTimeoutError(
-                f"{self._what(index, subindex)}{what}: no SDO answer ({exc})",
-                index=index,
-                subindex=subindex,
-            ) from None
+        data = b""
+        with self._sdo("read", index, subindex, what):
+            data = self.drive.sdo.upload(index, subindex)
+        return data
 
     # --- steps ----------------------------------------------------------------------------
     def configure_pdo(self, spec: PdoSpec) -> None:
