@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from axes import slide_axis
 
 from plant_sim.axis import AxisConfig
 from plant_sim.diagnose.effects import (
@@ -24,6 +23,7 @@ from plant_sim.diagnose.effects import (
     periodic_peaks,
 )
 from plant_sim.diagnose.replay import prepare_replay, replay
+from plant_sim.diagnose.synthetic import slide_axis
 from plant_sim.model import KernelOptions, default_substeps
 from plant_sim.simulate import References, simulate
 from plant_sim.trace import Trace

@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-from axes import slide_axis
 
 from plant_sim.axis import AxisConfig
 from plant_sim.diagnose.effects import data_scales, inverse_dynamics, nominal_spec
@@ -23,6 +22,7 @@ from plant_sim.diagnose.fit import (
     periodic_pseudo,
 )
 from plant_sim.diagnose.replay import prepare_replay
+from plant_sim.diagnose.synthetic import slide_axis
 from plant_sim.model import KernelOptions
 from plant_sim.simulate import References, simulate
 from plant_sim.trace import Trace

@@ -6,13 +6,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from axes import slide_axis
 
 from plant_sim.__main__ import main
 from plant_sim.axis import (
     AxisConfig,
     dump_axis,
 )
+from plant_sim.diagnose.synthetic import slide_axis
 from plant_sim.model import KernelOptions
 from plant_sim.simulate import References, simulate
 from plant_sim.trace import Trace, read_trace

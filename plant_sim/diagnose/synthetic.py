@@ -141,8 +141,11 @@ def _mill() -> Family:
     )
 
 
-def _slide() -> Family:
-    truth = AxisConfig(
+def slide_axis() -> AxisConfig:
+    """A light rigid slide (10 mm screw pitch, 25 kg), PI speed loop, position loop on the
+    motor encoder, no torque limit: small and fast to simulate (the "slide" family's truth
+    without its saturation; also the tests' small axis)."""
+    return AxisConfig(
         kind=AxisKind.LINEAR,
         transmission_ratio=2.0 * math.pi / 0.01,
         mechanics=Mechanics(motor_inertia=1.2e-4, screw_inertia=0.8e-4, load_mass=25.0),
@@ -151,11 +154,14 @@ def _slide() -> Family:
             kv=30.0,
             ksp=0.1,
             tsi=0.008,
-            torque_limit=3.0,
             current_lag=0.0002,
             position_feedback=PositionFeedback.MOTOR,
         ),
     )
+
+
+def _slide() -> Family:
+    truth = slide_axis().with_values({"control.torque_limit": 3.0})
     effects: dict[Effect, tuple[dict[str, float | None], ...]] = {
         Effect.BACKLASH: (
             {
