@@ -78,17 +78,3 @@ def run_section_x(
         enabled=with_regulator,
     )
     return simulate(axis, scenario.references(axis), reg, options)
-
-
-def following_errors(trace: Trace, transmission_ratio: float) -> dict[str, np.ndarray]:
-    """Panel A of Fig. 8/9: the following error of eq. 1 (speed/k_v, from ω_s) next to the
-    measured load following error and the motor-load difference.
-
-    Returns ``eq1`` (ω_s/(k_r·k_v), what an ideal axis lags), ``load`` (x_ref − x_l) and
-    ``motor`` (x_ref − θ_m/k_r), all in load units.
-    """
-    x_ref = trace["position_reference"]
-    return {
-        "load": x_ref - trace["load_position"],
-        "motor": x_ref - trace["motor_position"] / transmission_ratio,
-    }
