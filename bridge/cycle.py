@@ -11,8 +11,8 @@ Running, per SYNC k (docs/canopen_layout.md: the set point takes effect at SYNC 
 1. measurements at t_k: motor angle theta_m (6064h), load position x_l (60E4h:01), statusword,
    torque, motor speed; a missing TPDO is extrapolated from the last samples;
 2. supervision: PDO loss, heartbeat (1016h), EMCY, drive state, following error, encoder
-   discrepancy -- any of them stops the axis (quick stop, set point 0) with a
-   :class:`StopReason` and a message until a reset command;
+   discrepancy, software position limits (2014h) -- any of them stops the axis (quick stop,
+   set point 0) with a :class:`StopReason` and a message until a reset command;
 3. interpolator: x_ref and its speed, omega_s = k_r * speed;
 4. eq. 7 on the load scale: omega_c = k_r k_v (x_ref - x_l) (:class:`regulator.PositionController`);
 5. eq. 15: omega_r = omega_s - lambda (omega_s - omega_c) (:class:`regulator.BacklashRegulator`),
@@ -66,6 +66,7 @@ class StopReason(Enum):
     DRIVE_DISABLED = 7  # the drive left Operation Enabled without a fault
     DRIVE_NMT = 8  # the drive's heartbeat reports boot-up or a non-operational NMT state
     ENABLE_TIMEOUT = 9  # the drive did not reach Operation Enabled within ENABLE_TIMEOUT_S
+    POSITION_LIMIT = 10  # the load scale is outside 2014h and no move heads back inside
 
 
 class Command(IntEnum):
@@ -266,8 +267,30 @@ class CycleController:
                 abort_code=SdoAbort.DEVICE_STATE,
             )
 
+    def check_path(self, item: Move | Table) -> None:
+        """Refuse motion whose path leaves the software position limits (2014h): a move's
+        target (its path is the segment from wherever the axis is, so a move from outside
+        back inside is allowed), every sample of a table. ParameterError 0609 0031/0032."""
+        p = self.params
+        if isinstance(item, Move):
+            low = high = item.target
+            what = f"target {item.target:.9g}"
+        else:
+            low, high = float(item.position.min()), float(item.position.max())
+            what = f"table positions {low:.9g}..{high:.9g}"
+        if low < p.position_limit_min or high > p.position_limit_max:
+            raise ParameterError(
+                f"move refused: {what} load units leaves the software position limits "
+                f"2014h [{p.position_limit_min:g}, {p.position_limit_max:g}]",
+                field="target",
+                value=item.target if isinstance(item, Move) else (low, high),
+                abort_code=SdoAbort.TOO_LOW if low < p.position_limit_min else SdoAbort.TOO_HIGH,
+            )
+
     def queue_move(self, item: Move | Table) -> None:
-        """Queue motion: started now when running, else when the axis becomes running."""
+        """Queue motion: started now when running, else when the axis becomes running
+        (refused if its path leaves the software position limits, :meth:`check_path`)."""
+        self.check_path(item)
         if self.state is BridgeState.STOPPED:
             raise ParameterError(
                 f"no motion while stopped ({self.stop_reason.name}); reset first",
@@ -290,6 +313,7 @@ class CycleController:
                 value=item.target,
                 abort_code=SdoAbort.DEVICE_STATE,
             )
+        self.check_path(item)
         self.interpolator.queue(item)
 
     @property
@@ -443,6 +467,14 @@ class CycleController:
                     StopReason.ENCODER_DISCREPANCY,
                     f"motor encoder and load scale differ by {difference:.6g} load units "
                     f"since enable, above 2009h = {p.discrepancy_limit:g}",
+                )
+                return
+            low, high = p.position_limit_min, p.position_limit_max
+            if (x_l < low and interp.speed <= 0.0) or (x_l > high and interp.speed >= 0.0):
+                self._stop(
+                    StopReason.POSITION_LIMIT,
+                    f"load position {x_l:.9g} load units outside the software position limits "
+                    f"2014h [{low:g}, {high:g}] and no move heads back inside",
                 )
                 return
         omega_r = self.regulator.step(omega_s, omega_c)  # eq. 15

@@ -40,6 +40,7 @@ from .od import DEFAULT_DRIVE_ID, DEFAULT_EDS_PATH, DEFAULT_NODE_ID, load_od
 from .params import BridgeParams
 from .recorder import BusLog, TraceRecorder
 from .scaling import Scaling
+from .store import ParameterStore
 from .timing import Pacer, RealTimePacer
 
 log = logging.getLogger("bridge")
@@ -91,12 +92,15 @@ class BusPort:
 
 @dataclass(frozen=True)
 class BridgeConfig:
-    """Identity of the bridge on the bus and how it starts the drive."""
+    """Identity of the bridge on the bus, how it starts the drive, where it stores its
+    parameters (1010h; loaded when the bridge is built, over the given params)."""
 
     node_id: int = DEFAULT_NODE_ID
     drive_id: int = DEFAULT_DRIVE_ID
     eds_path: Path = DEFAULT_EDS_PATH
     drive_setup: DriveSetup = field(default_factory=DriveSetup)
+    #: Parameter store of 1010h/1011h (bridge.store); None: the bridge stores nothing.
+    store_path: Path | None = None
 
     def __post_init__(self) -> None:
         check_node_id("node_id", self.node_id)
@@ -152,9 +156,17 @@ class Bridge:
         self.counters = PdoCounters()
         self.scaling = Scaling.for_kind(kind)
         self.controller = CycleController(params, self.scaling, state=BridgeState.CONFIGURING)
+        store = None if config.store_path is None else ParameterStore(config.store_path)
         self.objects = ObjectServer(
-            self.controller, self.counters, self.scaling.load_increments_per_unit, config.drive_id
+            self.controller,
+            self.counters,
+            self.scaling.load_increments_per_unit,
+            config.drive_id,
+            store,
         )
+        if store is not None and (stored := store.load()) is not None:
+            self.controller.set_params(self.objects.apply_stored(stored, str(store.path)))
+            log.info("parameters loaded from %s", store.path)
         self.objects.attach(self.node)
         self.timing = Timing() if keep_timing else None
         self._wall = wall

@@ -129,6 +129,10 @@ def test_every_declared_object_behaves_in_the_running_node(
             assert abort_code(lambda i=index, s=sub, r=raw: tool.sdo.download(i, s, r)) == (
                 0x0601_0002
             ), where
+        elif index in (objdict.STORE_PARAMETERS, objdict.RESTORE_DEFAULTS):
+            # CiA 301: only the signature is accepted (tests/test_bridge_store.py)
+            code = abort_code(lambda i=index, s=sub, r=raw: tool.sdo.download(i, s, r))
+            assert code == SdoAbort.NOT_STORED, where
         elif index != objdict.TARGET:  # writing a target starts a move (below)
             tool.sdo.download(index, sub, raw)  # the current value back: accepted
             assert tool.sdo.upload(index, sub) == raw, where
