@@ -142,8 +142,10 @@ class ObjectServer:
 
     # --- reads ---------------------------------------------------------------------------------
     def on_read(self, index: int, subindex: int, od: object = None) -> bytes | None:
-        """Raw value of a bound object, or None for the LocalNode to use the EDS default."""
-        _check_subindex(subindex, od)
+        """Raw value of a bound object, or None for the LocalNode to use the EDS default
+        (``od`` None: a call from the bridge itself, no SDO sub-index check)."""
+        if od is not None:
+            _check_subindex(subindex, od)
         c = self.controller
         codec = _PARAMS.get((index, subindex))
         if codec is not None:
