@@ -1,4 +1,4 @@
-"""``python -m bridge COMMAND``: run, demo, busload, bench, eds.
+"""``python -m bridge COMMAND``: run, demo, busload, bench, eds, config.
 
 Bad arguments or files end with a one-line message and exit status 2 (no traceback); a
 failure while running (drive does not answer, bus error) with a one-line message and 1.
@@ -22,6 +22,7 @@ from virtual_bus import BusConfig, Interface, VirtualBusError
 from virtual_bus.errors import BusUnavailableError
 
 from . import od as objdict
+from .commission import command as config_command
 from .eds import render_eds
 from .errors import BridgeError, DriveSetupError
 from .interpolator import Move, load_move_file, parse_move
@@ -201,6 +202,13 @@ def build_parser() -> _Parser:
     )
     eds.add_argument("--out", type=Path, default=objdict.DEFAULT_EDS_PATH, help="EDS path")
     eds.add_argument("--check", action="store_true", help="exit 1 if the file differs")
+
+    config = sub.add_parser(
+        config_command.NAME,
+        help=config_command.HELP,
+        description=(config_command.__doc__ or "").split("\n\n")[0],
+    )
+    config_command.add_arguments(config)
     return parser
 
 
@@ -292,6 +300,7 @@ COMMANDS = {
     "busload": _cmd_busload,
     "bench": _cmd_bench,
     "eds": _cmd_eds,
+    config_command.NAME: config_command.run,
 }
 
 

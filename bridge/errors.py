@@ -104,3 +104,23 @@ class StoreError(BridgeConfigError):
     def __init__(self, message: str, *, path: str) -> None:
         super().__init__(message)
         self.path = path
+
+
+class CommissionInputError(BridgeConfigError):
+    """Commissioning input refused before anything is sent: an unknown object, a value of the
+    wrong type or out of range, an unreadable DCF or EDS (exit status 2)."""
+
+
+class NodeAccessError(BridgeError, RuntimeError):
+    """A node refused an SDO request or did not answer (exit status 1).
+
+    ``index``/``subindex`` name the object, ``abort_code`` is the node's SDO abort code
+    (``None``: no answer)."""
+
+    def __init__(
+        self, message: str, *, index: int, subindex: int, abort_code: int | None = None
+    ) -> None:
+        super().__init__(message)
+        self.index = index
+        self.subindex = subindex
+        self.abort_code = abort_code
