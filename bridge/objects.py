@@ -212,7 +212,12 @@ class ObjectServer:
         else:
             decoded = self.field_value(index, subindex, raw)
             if decoded is not None:
-                self._set(*decoded)
+                field, value = decoded
+                if self.on_read(index, subindex) == raw:
+                    # the value read back (REAL32 of a double): keep the exact one, so a tool
+                    # restoring what it read changes nothing
+                    value = getattr(c.params, field)
+                self._set(field, value)
         # other writable objects: none (all others are ro/const in the EDS)
 
     def field_value(self, index: int, subindex: int, raw: bytes) -> tuple[str, object] | None:

@@ -2,9 +2,9 @@
 
 Object references (:func:`resolve`): ``2001h``, ``0x2001``, ``2001:0``, ``0x2001:00``,
 ``2001sub0``, ``1016h:01``, or the ParameterName of the EDS (``"Regulator enable"``, a
-sub-object's own name such as ``"Max position limit"`` when it is unique, or
-``"Group name:1"``), case-insensitive. An ARRAY or RECORD without a sub-index means all of
-its sub-objects (``get``) -- a write needs one.
+sub-object's own name such as ``"Max position limit"`` when it is unique, ``"Group name:1"``
+or python-canopen's ``"Group name.Member name"``), case-insensitive. An ARRAY or RECORD
+without a sub-index means all of its sub-objects (``get``) -- a write needs one.
 
 Values (:func:`parse_value`, :func:`format_value`) follow the CiA 301 data type of the EDS:
 integers in decimal or 0x-hex, checked against the type's range and the EDS
@@ -116,6 +116,16 @@ def resolve(od: canopen.ObjectDictionary, text: str) -> list[ODVariable]:
     if len(by_name) > 1:
         where = ", ".join(key_text(v) for v in by_name)
         raise CommissionInputError(f"object {text!r} is ambiguous ({where}); give the index")
+    group_name, dot, sub_name = text.strip().partition(".")
+    if dot:  # python-canopen's "Group.Member" form
+        for index in od.indices:
+            obj = od[index]
+            if obj.name.casefold() == group_name.strip().casefold() and not isinstance(
+                obj, ODVariable
+            ):
+                for member in _members(obj):
+                    if member.name.casefold() == sub_name.strip().casefold():
+                        return [member]
     named_sub = _NAME_SUB.match(text.strip())
     if named_sub is not None:
         name = named_sub[1].casefold()

@@ -316,15 +316,15 @@ def _rollback(
 
 def _load(args: argparse.Namespace) -> int:
     with open_node(args) as (access, od):
+        if args.save and not _has(od, 0x1010, 1):
+            raise CommissionInputError(
+                f"--save: node {args.node_id}'s EDS has no 1010h:01 (store parameters)"
+            )
         dcf = read_dcf(args.dcf, od, args.node_id)
         if dcf.node_id is not None and dcf.node_id != args.node_id:
             raise CommissionInputError(
                 f"{args.dcf}: made for node-ID {dcf.node_id} ([DeviceComissioning] NodeID), "
                 f"not {args.node_id}"
-            )
-        if args.save and not _has(od, 0x1010, 1):
-            raise CommissionInputError(
-                f"--save: node {args.node_id}'s EDS has no 1010h:01 (store parameters)"
             )
         skipped: list[str] = []
         candidates: list[tuple[ODVariable, Value]] = []
