@@ -81,6 +81,11 @@ def _move(text: str) -> Move:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def default_store_path(axis_path: Path) -> Path:
+    """The bridge's parameter store beside its axis file: ``AXIS.bridge-store.json``."""
+    return axis_path.with_name(f"{axis_path.stem}.bridge-store.json")
+
+
 def _read_axis(path: Path) -> AxisConfig:
     return load_axis(path)
 
@@ -138,6 +143,13 @@ def build_parser() -> _Parser:
     )
     run.add_argument("--no-regulator", action="store_true", help="ordinary control (Fig. 1)")
     run.add_argument("--beta-t", type=_positive, help="vibration threshold beta_T, rad/s")
+    run.add_argument(
+        "--store",
+        type=Path,
+        metavar="FILE",
+        help="parameter store of 1010h/1011h, loaded at start (default: beside the axis "
+        "file, AXIS.bridge-store.json)",
+    )
     run.add_argument("--trace", type=Path, help="trace file to write (trace-file.md)")
     run.add_argument("--bus-log", type=Path, help="candump log of the bus traffic")
     run.add_argument(
@@ -222,7 +234,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     options = RunOptions(
         bus=BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate),
         axis=_read_axis(args.axis),
-        bridge=BridgeConfig(node_id=args.node_id, drive_id=args.drive_id),
+        bridge=BridgeConfig(
+            node_id=args.node_id,
+            drive_id=args.drive_id,
+            store_path=args.store or default_store_path(args.axis),
+        ),
         moves=tuple(moves),
         seconds=args.seconds,
         hold_s=args.hold,
@@ -234,6 +250,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     )
     if not moves and args.seconds is None:
         raise UsageError("give --move, --move-file or --seconds (otherwise it never ends)")
+    store = options.bridge.store_path
+    if store is not None and (store.is_dir() or not store.parent.is_dir()):
+        raise UsageError(f"--store {store}: not a file in an existing directory")
     result = run_bridge(options)
     print(
         f"{result.cycles} cycles; state {result.state.name}; missed TPDOs "

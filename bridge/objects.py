@@ -25,6 +25,7 @@ from .cycle import Command, CycleController
 from .errors import ParameterError, SdoAbort, StoreError
 from .interpolator import Move
 from .params import BridgeParams, check_field
+from .scaling import Scaling
 from .store import ParameterStore, RawValues
 
 log = logging.getLogger("bridge")
@@ -338,3 +339,21 @@ def _live_table() -> dict[int, Callable[[ObjectServer, CycleController], bytes]]
 
 
 _LIVE = _live_table()
+
+
+def params_with_store(
+    params: BridgeParams, load_increments_per_unit: float, drive_id: int, store: ParameterStore
+) -> BridgeParams:
+    """``params`` with the store file's values applied, as a bridge built with that store
+    would run (for what must be known before the bridge exists, e.g. the cycle of the pacer).
+    StoreError if the file is malformed or refused."""
+    values = store.load()
+    if values is None:
+        return params
+    server = ObjectServer(
+        CycleController(params, Scaling(load_increments_per_unit, 1.0)),
+        PdoCounters(),
+        load_increments_per_unit,
+        drive_id,
+    )
+    return server.apply_stored(values, str(store.path))

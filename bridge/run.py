@@ -23,8 +23,11 @@ from .busload import layout_load
 from .cycle import BridgeState, Command
 from .interpolator import Move
 from .node import Bridge, BridgeConfig
+from .objects import params_with_store
 from .params import BridgeParams
 from .recorder import BusLog, TraceRecorder
+from .scaling import LOAD_INCREMENTS_PER_UNIT
+from .store import ParameterStore
 from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
 
 log = logging.getLogger("bridge")
@@ -72,6 +75,14 @@ def params_for(options: RunOptions) -> BridgeParams:
 def run_bridge(options: RunOptions) -> RunResult:
     """Run the bridge as described in the module docstring (blocking)."""
     params = params_for(options)
+    store_path = options.bridge.store_path
+    if store_path is not None:  # the stored cycle (1006h) sets the pacer
+        params = params_with_store(
+            params,
+            LOAD_INCREMENTS_PER_UNIT[options.axis.kind],
+            options.bridge.drive_id,
+            ParameterStore(store_path),
+        )
     _, load = layout_load(1, params.cycle_s, options.bus.bitrate)
     if load.load_fraction > 0.8:
         log.warning(
@@ -102,12 +113,24 @@ def run_bridge(options: RunOptions) -> RunResult:
             bus_log=bus_log,
             keep_timing=True,
         )
+        _command_line_over_store(bridge, options)
         try:
-            return _loop(bridge, options, params)
+            return _loop(bridge, options, bridge.controller.params)
         finally:
             bridge.close()
     finally:
         bus.shutdown()
+
+
+def _command_line_over_store(bridge: Bridge, options: RunOptions) -> None:
+    """--no-regulator / --beta-t win over the parameter store (loaded by the bridge)."""
+    c = bridge.controller
+    p = c.params
+    if not options.regulator_enabled:
+        p = p.with_value("regulator_enabled", False)
+    if options.beta_t_rad_s is not None:
+        p = p.with_value("beta_t_rad_s", options.beta_t_rad_s)
+    c.set_params(p)
 
 
 def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResult:
