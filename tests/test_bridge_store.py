@@ -15,9 +15,8 @@ from pathlib import Path
 import can
 import canopen
 import pytest
-from canopen.sdo import SdoAbortedError
+from bridge_helpers import abort_code, sdo_tool  # tests/ helper module
 
-from bridge import od as objdict
 from bridge.cycle import Command
 from bridge.errors import SdoAbort, StoreError
 from bridge.node import Bridge, BridgeConfig
@@ -49,22 +48,8 @@ def running_bridge(bus: can.BusABC, store: Path | None) -> Iterator[Bridge]:
 
 @pytest.fixture
 def tool(bus_pair: tuple[can.BusABC, can.BusABC]) -> Iterator[canopen.RemoteNode]:
-    network = canopen.Network(bus_pair[1])
-    notifier = can.Notifier(bus_pair[1], network.listeners, 0.02)
-    network.notifier = notifier
-    node = canopen.RemoteNode(objdict.DEFAULT_NODE_ID, objdict.load_od())
-    network.add_node(node)
-    node.sdo.RESPONSE_TIMEOUT = 2.0
-    try:
+    with sdo_tool(bus_pair[1]) as node:
         yield node
-    finally:
-        notifier.stop(2.0)
-
-
-def abort_code(call: object) -> int:
-    with pytest.raises(SdoAbortedError) as info:
-        call()  # type: ignore[operator]
-    return info.value.code
 
 
 def test_store_restart_and_read_back(
