@@ -36,6 +36,7 @@ AXIS = load_axis("config/paper_axis.toml")
 @dataclass
 class Nodes:
     channel: str
+    interface: str
     bridge: Bridge
     drive: SimulatedDrive
     tool: canopen.Network  # python-canopen's master on the same bus
@@ -55,7 +56,7 @@ class Nodes:
             "config",
             action,
             "--interface",
-            "virtual",
+            self.interface,
             "--channel",
             self.channel,
             "--node-id",
@@ -65,9 +66,12 @@ class Nodes:
 
 
 @pytest.fixture
-def nodes(tmp_path: Path) -> Iterator[Nodes]:
-    channel = f"config-{uuid.uuid4().hex[:10]}"
-    config = BusConfig(interface=Interface.VIRTUAL, channel=channel)
+def nodes(tmp_path: Path, bus_mode: Interface) -> Iterator[Nodes]:
+    """Bridge (node 1) and simulated drive (node 2) on one bus of each mode (virtual; vcan0
+    where the host has it), python-canopen's master as a third station."""
+    vcan = bus_mode is Interface.SOCKETCAN
+    channel = "vcan0" if vcan else f"config-{uuid.uuid4().hex[:10]}"
+    config = BusConfig(interface=bus_mode, channel=channel)
     buses = [open_bus(config) for _ in range(3)]
     store = tmp_path / "bridge-store.json"
     bridge = Bridge(
@@ -85,7 +89,7 @@ def nodes(tmp_path: Path) -> Iterator[Nodes]:
     drive.start()
     try:
         with bridge.serving():
-            yield Nodes(channel, bridge, drive, tool, store)
+            yield Nodes(channel, bus_mode.value, bridge, drive, tool, store)
     finally:
         notifier.stop(2.0)
         drive.stop()
