@@ -13,7 +13,7 @@ import sys
 
 from .errors import PlantSimError
 
-COMMANDS = ("paper", "sweep", "bench", "simulate", "identify", "diagnose")
+COMMANDS = ("paper", "sweep", "bench", "simulate", "identify", "diagnose", "monitor", "monitor_bench")
 
 
 def _parser() -> tuple[argparse.ArgumentParser, dict[str, object]]:
