@@ -1,4 +1,4 @@
-"""``python -m bridge COMMAND``: run, demo, busload, bench, eds.
+"""``python -m bridge COMMAND``: run, demo, busload, bench, eds, probe.
 
 Bad arguments or files end with a one-line message and exit status 2 (no traceback); a
 failure while running (drive does not answer, bus error) with a one-line message and 1.
@@ -22,11 +22,13 @@ from virtual_bus import BusConfig, Interface, VirtualBusError
 from virtual_bus.errors import BusUnavailableError
 
 from . import od as objdict
+from . import probe as probe_command
 from .eds import render_eds
 from .errors import BridgeError, DriveSetupError
 from .interpolator import Move, load_move_file, parse_move
 from .layout import check_node_id
 from .node import BridgeConfig
+from .profile import load_profile
 from .timing import TimeMode
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -105,7 +107,17 @@ def build_parser() -> _Parser:
     )
     run.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
     run.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
-    run.add_argument("--bitrate", type=int, default=500_000, help="bit/s, a CiA 301 rate")
+    run.add_argument(
+        "--bitrate",
+        type=int,
+        default=1_000_000,
+        help="bit/s, a CiA 301 rate (default 1000000: one axis at 1 ms is 44 %% of it)",
+    )
+    run.add_argument(
+        "--drive-profile",
+        type=Path,
+        help="drive profile (config/drives/*.toml, `probe --out`); default: adapt to the drive",
+    )
     run.add_argument(
         "--node-id",
         type=_node_id,
@@ -169,7 +181,7 @@ def build_parser() -> _Parser:
         help="bus load of the PDO layout (SYNC + TPDO1 + TPDO2 + RPDO1 per axis)",
         description="Worst-case bit stuffing, 11-bit identifiers.",
     )
-    busload.add_argument("--bitrate", type=int, default=500_000, help="bit/s (default 500000)")
+    busload.add_argument("--bitrate", type=int, default=1_000_000, help="bit/s (default 1000000)")
     busload.add_argument("--cycle-us", type=_positive, help="SYNC period in µs (default: axis)")
     busload.add_argument(
         "--axis",
@@ -201,6 +213,11 @@ def build_parser() -> _Parser:
     )
     eds.add_argument("--out", type=Path, default=objdict.DEFAULT_EDS_PATH, help="EDS path")
     eds.add_argument("--check", action="store_true", help="exit 1 if the file differs")
+
+    probe = sub.add_parser(
+        probe_command.NAME, help=probe_command.HELP, description=probe_command.__doc__
+    )
+    probe_command.add_arguments(probe)
     return parser
 
 
@@ -214,7 +231,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     options = RunOptions(
         bus=BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate),
         axis=_read_axis(args.axis),
-        bridge=BridgeConfig(node_id=args.node_id, drive_id=args.drive_id),
+        bridge=BridgeConfig(
+            node_id=args.node_id,
+            drive_id=args.drive_id,
+            profile=None if args.drive_profile is None else load_profile(args.drive_profile),
+        ),
         moves=tuple(moves),
         seconds=args.seconds,
         hold_s=args.hold,
@@ -292,6 +313,7 @@ COMMANDS = {
     "busload": _cmd_busload,
     "bench": _cmd_bench,
     "eds": _cmd_eds,
+    probe_command.NAME: probe_command.run,
 }
 
 

@@ -298,8 +298,9 @@ def _toml_value(name: str, value: object) -> str:
     if name == "load_object":
         return f'"{format_key(value)}"'  # type: ignore[arg-type]
     if name == "mappable":
-        keys = sorted(value)  # type: ignore[call-overload]
-        return "[" + ", ".join(f'"{format_key(k)}"' for k in keys) + "]"
+        keys = [f'"{format_key(k)}"' for k in sorted(value)]  # type: ignore[call-overload]
+        rows = [", ".join(keys[i : i + 6]) for i in range(0, len(keys), 6)]
+        return "[\n" + "".join(f"    {row},\n" for row in rows) + "]"
     if name in ("vendor_id", "product_code", "rpdo_cob_id"):
         return f"0x{value:08X}" if name != "rpdo_cob_id" else f"0x{value:03X}"
     if name == "tpdo_cob_ids":
