@@ -66,6 +66,7 @@ def local_rig(
     channel = f"adapt-{uuid.uuid4().hex[:12]}"
     server = canopen.Network()
     client = canopen.Network()
+    server.NOTIFIER_CYCLE = client.NOTIFIER_CYCLE = 0.02  # bounds the join at disconnect
     nodes: dict[int, canopen.LocalNode] = {}
     server.connect(interface="virtual", channel=channel)
     try:
