@@ -8,12 +8,13 @@ import dataclasses
 import uuid
 from pathlib import Path
 
+import can
 import canopen
 import pytest
-from adapt_helpers import TECHNOSOFT_EDS, mirror_mode
+from adapt_helpers import ENCODER_EDS, TECHNOSOFT_EDS, mirror_mode
 
 from bridge.__main__ import build_parser, main
-from bridge.cycle import BridgeState
+from bridge.cycle import BridgeState, StopReason
 from bridge.errors import BridgeConfigError
 from bridge.interpolator import Move
 from bridge.layout import Signal
@@ -154,3 +155,74 @@ def test_adaptive_start_up_of_the_simulated_drive_is_the_contract_layout() -> No
     assert info.scaling.rated_torque_nm == pytest.approx(50.0)
     assert info.scaling.position_increments_per_rev == 2**20
     assert DriveProfile().load_source is LoadSource.AUTO
+
+
+def test_loop_with_a_cia406_encoder_node_as_the_load_scale() -> None:
+    """The simulated drive without its load scale in the PDOs and python canopen's
+    LocalNode of a CiA 406 encoder (node 5) on the same bus: the bridge configures the
+    encoder's TPDO1 (6004h on SYNC), canopen's PDO code sends the load position from that
+    mapping every SYNC, the loop closes on it; when the encoder's heartbeat stops the axis
+    stops with the encoder named."""
+    channel = f"enc-{uuid.uuid4().hex[:12]}"
+    enc_bus = can.Bus(interface="virtual", channel=channel)
+    enc_net = canopen.Network(enc_bus)
+    notifier = can.Notifier(enc_bus, enc_net.listeners, 0.02)
+    encoder = canopen.LocalNode(5, canopen.import_od(str(ENCODER_EDS), 5))
+    enc_net.add_node(encoder)
+    profile = dataclasses.replace(
+        load_profile(DRIVES / "simdrive.toml"),
+        load_source=LoadSource.ENCODER,
+        encoder_id=5,
+        load_increments_per_unit=1e6,  # 1 µm steps
+    )
+    beats = {"on": True, "syncs": 0}
+    try:
+        with simulated_axis(
+            AXIS, _params(), channel=channel, bridge_config=BridgeConfig(profile=profile)
+        ) as sim:
+            notifier.stop(2.0)
+            encoder.nmt.stop_heartbeat()  # wall clock; below on the loop's SYNC count
+            plant = sim.drive.plant
+            encoder.tpdo.read(from_od=False)  # the mapping the bridge wrote
+            position = encoder.tpdo[1]["Position value"]
+
+            def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
+                # sampled at SYNC k, before the drive's physics runs the cycle
+                position.raw = round(plant.load_position * 1e6) & 0xFFFF_FFFF
+                encoder.tpdo[1].transmit()
+                beats["syncs"] += 1
+                if beats["on"] and beats["syncs"] % 100 == 0:  # 100 ms heartbeat
+                    enc_net.send_message(0x705, b"\x05")
+
+            enc_net.subscribe(0x080, on_sync)
+            drive_poll = sim.bridge.peer_poll
+            assert drive_poll is not None
+
+            def poll() -> int:
+                n = 0
+                while (msg := enc_bus.recv(0.0)) is not None:
+                    for listener in enc_net.listeners:
+                        listener.on_message_received(msg)
+                    n += 1
+                return n + drive_poll()
+
+            sim.bridge.peer_poll = poll
+            layout = sim.bridge.layout
+            assert [(f.can_id, f.fmt) for f in layout.frames][-1] == (0x185, "<i")
+            c = sim.bridge.controller
+            sim.bridge.run(until=lambda b: b.controller.state is not BridgeState.ENABLING)
+            assert c.state is BridgeState.RUNNING, c.stop_message
+            start = c.load_position
+            c.queue_move(Move(start + 0.004, 0.02))
+            sim.bridge.run(cycles=900)
+            assert c.state is BridgeState.RUNNING, c.stop_message
+            assert sim.drive.plant.load_position == pytest.approx(start + 0.004, abs=3e-6)
+            assert c.load_position == pytest.approx(plant.load_position, abs=2e-6)
+            assert sim.bridge.counters.missed == 0
+            beats["on"] = False
+            sim.bridge.run(until=lambda b: b.controller.state is BridgeState.STOPPED)
+            assert c.stop_reason is StopReason.HEARTBEAT_LOST
+            assert "encoder node 5" in c.stop_message
+    finally:
+        notifier.stop(2.0)
+        enc_bus.shutdown()
