@@ -216,6 +216,8 @@ class DriveMaster:
 
     def read_facts(self) -> DriveFacts:
         """Step 2 of the module docstring: reads only, nothing is written."""
+        device_type = self._u32(0x1000, 0)  # first: a node that is not there times out here
+        vendor_id, product_code = self._u32(0x1018, 1), self._u32(0x1018, 2)
         objects: dict[tuple[int, int], bytes] = {}
         keys = list(CANDIDATES)
         if self.profile.load_object is not None:
@@ -226,9 +228,9 @@ class DriveMaster:
                 objects[key] = raw
         modes_raw = self.try_read(0x6502, 0, " (supported drive modes)")
         return DriveFacts(
-            device_type=self._u32(0x1000, 0),
-            vendor_id=self._u32(0x1018, 1),
-            product_code=self._u32(0x1018, 2),
+            device_type=device_type,
+            vendor_id=vendor_id,
+            product_code=product_code,
             supported_modes=int.from_bytes(modes_raw[:4], "little") if modes_raw else None,
             objects=objects,
             tpdos=self._pdo_facts(True),
