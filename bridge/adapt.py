@@ -201,16 +201,16 @@ def load_item(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> Item |
                 '(try "60E4h:00", "vendor" with load.object, "encoder" or "motor")',
                 sub1,
             )
-        return Item(Signal.LOAD_POSITION, sub1, "i32")
-    if source is LoadSource.ADDITIONAL_VAR:
+        item = Item(Signal.LOAD_POSITION, sub1, "i32")
+    elif source is LoadSource.ADDITIONAL_VAR:
         if not is_var:
             raise _fail(
                 f'drive {drive_id}: load.source = "60E4h:00" but 60E4h is not a plain '
                 'INTEGER32 variable there (try "60E4h:01", "vendor", "encoder" or "motor")',
                 var,
             )
-        return Item(Signal.LOAD_POSITION, var, "i32")
-    if source is LoadSource.VENDOR:
+        item = Item(Signal.LOAD_POSITION, var, "i32")
+    elif source is LoadSource.VENDOR:
         key = profile.load_object
         assert key is not None
         if not facts.has(key):
@@ -218,8 +218,16 @@ def load_item(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> Item |
                 f"drive {drive_id}: load.object {format_key(key)} does not exist on the drive",
                 key,
             )
-        return Item(Signal.LOAD_POSITION, key, profile.load_object_type)
-    return None
+        item = Item(Signal.LOAD_POSITION, key, profile.load_object_type)
+    else:
+        return None
+    if not profile.may_map(item.key):
+        raise _fail(
+            f"drive {drive_id}: load position {format_key(item.key)} cannot be mapped into a "
+            'TPDO (not PDO-mappable); choose another load.source ("encoder", "motor", ...)',
+            item.key,
+        )
+    return item
 
 
 # --- PDO packing ---------------------------------------------------------------------------------

@@ -244,8 +244,7 @@ class DriveMaster:
         cob = spec.cob_id
         name = f" ({spec.name})"
         self.write(spec.comm_index, 1, _U32.pack(COB_ID_INVALID | cob), name)
-        if spec.transmit or self.try_read(spec.comm_index, 2) != _U8.pack(spec.transmission_type):
-            self.write(spec.comm_index, 2, _U8.pack(spec.transmission_type), name)
+        self.write(spec.comm_index, 2, _U8.pack(spec.transmission_type), name)
         self.write(spec.mapping_index, 0, _U8.pack(0), name)
         for i, mapped in enumerate(spec.mapping, start=1):
             try:

@@ -273,3 +273,25 @@ def test_an_object_the_drive_refuses_to_map_is_left_out(
     carried = [s for f in plan.layout.frames for s in f.signals]
     assert Signal.TORQUE not in carried and Signal.LOAD_POSITION in carried
     assert "0x06040041" in caplog.text.lower() or "6040041" in caplog.text
+
+
+def test_60e4_as_a_plain_variable_is_mapped_at_sub_index_0(tmp_path: Path) -> None:
+    """A drive whose 60E4h is a plain INTEGER32 (no sub-index 1): the drive's EDS with 60E4h
+    rewritten that way; its sub-index 0 then reads 4 bytes instead of a 1-byte count."""
+    text = SIM_EDS.read_text(encoding="utf-8")
+    start = text.index("[60E4]")
+    end = text.index("[60FF]")
+    plain = (
+        "[60E4]\nParameterName=Additional position actual value\nObjectType=0x7\n"
+        "DataType=0x0004\nAccessType=ro\nDefaultValue=0\nPDOMapping=1\n\n"
+    )
+    eds = tmp_path / "plain60e4.eds"
+    eds.write_text(text[:start] + plain + text[end:], encoding="utf-8")
+    with local_rig(eds) as rig:
+        plan, _, _ = rig.master.configure()
+        assert [rig.stored(2, 0x1A00, i) for i in range(3)] == [
+            2,
+            entry(0x6064, 0, 32),
+            entry(0x60E4, 0, 32),
+        ]
+    assert plan.load_source is LoadSource.ADDITIONAL_VAR and plan.layout.load_measured
