@@ -215,7 +215,8 @@ class CycleController:
         """Decode the frames of ``layout`` from the next step on (start-up only)."""
         self.layout = layout
         self._decoders = tuple(
-            (struct.Struct(f.fmt), tuple(_SLOT[s] for s in f.signals)) for f in layout.frames
+            (struct.Struct(f.fmt).unpack, tuple(_SLOT[s] for s in f.signals))
+            for f in layout.frames
         )
         self._rpdo_struct = struct.Struct(layout.rpdo_fmt)
         self._rpdo = bytearray(self._rpdo_struct.size)
@@ -360,11 +361,13 @@ class CycleController:
     def _measure(self, frames: tuple[bytes | None, ...]) -> None:
         raw = self._raw
         missing = False
-        for (decoder, slots), data in zip(self._decoders, frames, strict=True):
+        if len(frames) != len(self._decoders):
+            raise ValueError(f"{len(frames)} frames for a layout of {len(self._decoders)}")
+        for (unpack, slots), data in zip(self._decoders, frames):  # noqa: B905 (checked)
             if data is None:
                 missing = True
                 continue
-            for slot, value in zip(slots, decoder.unpack(data), strict=True):
+            for slot, value in zip(slots, unpack(data)):  # noqa: B905 (same length)
                 raw[slot] = value
         position_in = frames[self._position_frame] is not None
         load_in = frames[self._load_frame] is not None
