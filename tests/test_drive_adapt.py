@@ -21,7 +21,8 @@ import pytest
 from adapt_helpers import ENCODER_EDS, TECHNOSOFT_EDS, YIYOU_EDS, local_rig
 from canopen.sdo import SdoAbortedError
 
-from bridge.adapt import VelocityMode
+from bridge.adapt import CSV_BIT, DriveFacts, PdoFacts, VelocityMode
+from bridge.adapt import plan as adapt_plan
 from bridge.errors import DriveSetupError
 from bridge.layout import Signal
 from bridge.probe import COMMISSIONING_FIELDS, mappable_from_eds, profile_from_facts
@@ -295,3 +296,80 @@ def test_60e4_as_a_plain_variable_is_mapped_at_sub_index_0(tmp_path: Path) -> No
             entry(0x60E4, 0, 32),
         ]
     assert plan.load_source is LoadSource.ADDITIONAL_VAR and plan.layout.load_measured
+
+
+# --- the planner on hand-made facts (values computed by hand from CiA 402's definitions) ----------
+def _facts(**objects: bytes) -> DriveFacts:
+    base = {
+        (0x6040, 0): b"\0\0",
+        (0x6041, 0): b"\0\0",
+        (0x6060, 0): b"\0",
+        (0x6064, 0): bytes(4),
+        (0x606C, 0): bytes(4),
+        (0x6077, 0): bytes(2),
+        (0x60FF, 0): bytes(4),
+    }
+    for name, raw in objects.items():
+        index, sub = name[1:].split("_")
+        base[(int(index, 16), int(sub))] = raw
+    pdos = tuple(PdoFacts(n, 0x180 + 0x100 * (n - 1) + 2, 1, 8) for n in range(1, 5))
+    rpdos = tuple(PdoFacts(n, 0x200 + 0x100 * (n - 1) + 2, 255, 8) for n in range(1, 5))
+    return DriveFacts(0x00020192, 1, 2, CSV_BIT, base, pdos, rpdos)
+
+
+def _u32(value: int) -> bytes:
+    return struct.pack("<I", value)
+
+
+@pytest.mark.parametrize(
+    ("objects", "units_per_rev"),
+    [
+        ({"x608F_1": _u32(4096), "x608F_2": _u32(1)}, 4096.0),  # increments per motor rev
+        ({"x608F_1": _u32(10000), "x608F_2": _u32(4)}, 2500.0),
+        # feed constant 5000 µm per driving-shaft rev, gear 3 motor revs : 1 shaft rev
+        (
+            {
+                "x6092_1": _u32(5000),
+                "x6092_2": _u32(1),
+                "x6091_1": _u32(3),
+                "x6091_2": _u32(1),
+                "x608F_1": _u32(4096),
+                "x608F_2": _u32(1),
+            },
+            5000 / 3,
+        ),
+    ],
+)
+def test_position_units_per_motor_revolution_from_the_factor_objects(
+    objects: dict[str, bytes], units_per_rev: float
+) -> None:
+    plan = adapt_plan(_facts(**objects), DriveProfile(rated_torque_mnm=1000), 2, 1e9)
+    assert plan.scaling.position_increments_per_rev == pytest.approx(units_per_rev)
+    assert plan.scaling.velocity_units_per_rev_s == pytest.approx(units_per_rev)
+
+
+def test_a_velocity_factor_other_than_one_needs_the_profile() -> None:
+    facts = _facts(x608F_1=_u32(4096), x608F_2=_u32(1), x6096_1=_u32(60), x6096_2=_u32(1))
+    with pytest.raises(DriveSetupError, match=r"6096h is 60/1: set scaling\.velocity_units"):
+        adapt_plan(facts, DriveProfile(), 2, 1e9)
+    profile = DriveProfile(velocity_units_per_rev_s=60.0)
+    assert adapt_plan(facts, profile, 2, 1e9).scaling.velocity_units_per_rad_s == pytest.approx(
+        60 / (2 * math.pi)
+    )
+
+
+def test_packing_follows_the_drives_mapping_entries() -> None:
+    """Two entries per TPDO: 6064h+6041h (48 bits), 6077h+606Ch (48 bits)."""
+    facts = _facts(x608F_1=_u32(4096), x608F_2=_u32(1))
+    plan = adapt_plan(facts, DriveProfile(max_entries=2), 2, 1e9)
+    assert [[i.key[0] for i in p.items] for p in plan.tpdos] == [
+        [0x6064, 0x6041],
+        [0x6077, 0x606C],
+    ]
+    # one TPDO of one entry: velocity and torque are left out, required ones must fit
+    one = DriveProfile(max_entries=2, tpdos=(1,))
+    assert [[i.key[0] for i in p.items] for p in adapt_plan(facts, one, 2, 1e9).tpdos] == [
+        [0x6064, 0x6041]
+    ]
+    with pytest.raises(DriveSetupError, match=r"6041h:00 .* does not fit"):
+        adapt_plan(facts, DriveProfile(max_entries=1, tpdos=(1,)), 2, 1e9)
