@@ -215,8 +215,7 @@ class CycleController:
         """Decode the frames of ``layout`` from the next step on (start-up only)."""
         self.layout = layout
         self._decoders = tuple(
-            (struct.Struct(f.fmt).unpack, tuple(_SLOT[s] for s in f.signals))
-            for f in layout.frames
+            (struct.Struct(f.fmt).unpack, tuple(_SLOT[s] for s in f.signals)) for f in layout.frames
         )
         self._rpdo_struct = struct.Struct(layout.rpdo_fmt)
         self._rpdo = bytearray(self._rpdo_struct.size)

@@ -69,6 +69,31 @@ class CycleMessage(can.Message):
         return new
 
 
+@contextlib.contextmanager
+def pumping(
+    recv: Callable[[float | None], can.Message | None],
+    handle: Callable[[can.Message], None],
+    name: str,
+) -> Iterator[None]:
+    """A thread that hands every received frame to ``handle`` while the block runs (the SDO
+    client's answers during start-up and ``bridge probe``)."""
+    stop = threading.Event()
+
+    def pump() -> None:
+        while not stop.is_set():
+            msg = recv(0.005)
+            if msg is not None:
+                handle(msg)
+
+    thread = threading.Thread(target=pump, name=name, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
 class BusPort:
     """The bridge's side of the bus: every frame sent or received passes here and goes to the
     bus log (if any). canopen's Network sends through :meth:`send` too."""
@@ -246,21 +271,8 @@ class Bridge:
     def serving(self) -> Iterator[None]:
         """Feed received frames to canopen from a thread (SDO client/server while not
         cycling); the thread ends when the block ends."""
-        stop = threading.Event()
-
-        def pump() -> None:
-            while not stop.is_set():
-                msg = self.port.recv(0.005)
-                if msg is not None:
-                    self.dispatch(msg)
-
-        thread = threading.Thread(target=pump, name="bridge-service", daemon=True)
-        thread.start()
-        try:
+        with pumping(self.port.recv, self.dispatch, "bridge-service"):
             yield
-        finally:
-            stop.set()
-            thread.join()
 
     # --- start-up ---------------------------------------------------------------------------
     def start(self, configure_drive: bool = True) -> DriveInfo | None:

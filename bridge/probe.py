@@ -13,9 +13,6 @@ the user to complete). Exit 1 when the drive does not answer, 2 for bad argument
 from __future__ import annotations
 
 import argparse
-import contextlib
-import threading
-from collections.abc import Iterator
 from pathlib import Path
 
 import can
@@ -36,6 +33,7 @@ from .adapt import (
 from .errors import BridgeConfigError, DriveSetupError
 from .layout import check_node_id
 from .master import NMT_PRE_OPERATIONAL, DriveMaster, DriveSetup
+from .node import pumping
 from .profile import DriveProfile, LoadSource, ModeChoice, ObjectKey, format_key, render_profile
 from .scaling import LOAD_INCREMENTS_PER_UNIT
 
@@ -167,33 +165,17 @@ def describe(facts: DriveFacts) -> str:
     return "\n".join(lines)
 
 
-@contextlib.contextmanager
-def _served(network: canopen.Network, bus: can.BusABC) -> Iterator[None]:
-    """Feed received frames to canopen while the SDO client waits (one thread)."""
-    stop = threading.Event()
-
-    def pump() -> None:
-        while not stop.is_set():
-            msg = bus.recv(0.005)
-            if msg is not None:
-                network.notify(msg.arbitration_id, msg.data, msg.timestamp)
-
-    thread = threading.Thread(target=pump, name="bridge-probe", daemon=True)
-    thread.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        thread.join()
-
-
 def probe_drive(bus: can.BusABC, drive_id: int, setup: DriveSetup | None = None) -> DriveFacts:
     """Read the drive ``drive_id`` on ``bus`` (NMT pre-operational, then reads only)."""
     network = canopen.Network(bus)
     drive = canopen.RemoteNode(drive_id, canopen.ObjectDictionary())
     network.add_node(drive)
     master = DriveMaster(drive, setup or DriveSetup())
-    with _served(network, bus):
+
+    def handle(msg: can.Message) -> None:
+        network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+
+    with pumping(bus.recv, handle, "bridge-probe"):
         drive.nmt.send_command(NMT_PRE_OPERATIONAL)
         return master.read_facts()
 
