@@ -112,8 +112,14 @@ class DriveInfo:
 _ABSENT = (SdoAbort.NO_OBJECT, SdoAbort.NO_SUBINDEX)
 #: 060A 0023 resource not available: the object exists but has no value to give.
 _NO_DATA = 0x060A_0023
-#: 0604 0041 object cannot be mapped; 0604 0042 mapping exceeds the PDO length.
-_NOT_MAPPABLE = (0x0604_0041, 0x0604_0042)
+#: Answers to a mapping entry that mean "not this object": 0604 0041 object cannot be mapped,
+#: 0604 0042 mapping exceeds the PDO length, 0602 0000 object does not exist.
+_NOT_MAPPABLE = (0x0604_0041, 0x0604_0042, SdoAbort.NO_OBJECT)
+
+
+class UnmappableError(DriveSetupError):
+    """The drive refused a mapping entry (:data:`_NOT_MAPPABLE`); the start-up plans again
+    without that object."""
 
 
 class DriveMaster:
@@ -250,9 +256,15 @@ class DriveMaster:
             try:
                 self.write(spec.mapping_index, i, _U32.pack(mapped.entry), name)
             except DriveSetupError as exc:
-                if exc.abort_code in _NOT_MAPPABLE:
-                    self._unmappable.add((mapped.index, mapped.subindex))
-                raise
+                if exc.abort_code not in _NOT_MAPPABLE:
+                    raise
+                self._unmappable.add((mapped.index, mapped.subindex))
+                raise UnmappableError(
+                    f"{exc} ({mapped.index:04X}h:{mapped.subindex:02X} not mappable)",
+                    index=exc.index,
+                    subindex=exc.subindex,
+                    abort_code=exc.abort_code,
+                ) from None
         self.write(spec.mapping_index, 0, _U8.pack(len(spec.mapping)), name)
         self.write(spec.comm_index, 1, _U32.pack(cob), name)
 
@@ -371,18 +383,14 @@ class DriveMaster:
         self.drive.nmt.send_command(NMT_PRE_OPERATIONAL)
         facts = self.read_facts()
         the_plan = self.plan(facts)
-        for _attempt in range(6):
+        while True:  # each round leaves out one more object the drive refused to map
             try:
                 for spec in the_plan.tpdos:
                     self.configure_pdo(spec)
                 break
-            except DriveSetupError as exc:
-                if exc.abort_code not in _NOT_MAPPABLE:
-                    raise
+            except UnmappableError as exc:
                 log.warning("drive %d: %s; planning without it", self.drive.id, exc)
                 the_plan = self.plan(facts)
-        else:
-            raise DriveSetupError(f"drive {self.drive.id}: no PDO layout the drive accepts")
         self.configure_pdo(the_plan.rpdo)
         if self.setup.disable_other_pdos:
             used = {(p.transmit, p.number) for p in (*the_plan.tpdos, the_plan.rpdo)}

@@ -373,3 +373,19 @@ def test_packing_follows_the_drives_mapping_entries() -> None:
     ]
     with pytest.raises(DriveSetupError, match=r"6041h:00 .* does not fit"):
         adapt_plan(facts, DriveProfile(max_entries=1, tpdos=(1,)), 2, 1e9)
+
+
+def test_the_issue_7_refusal_of_60e4_mapping_leads_to_motor_feedback() -> None:
+    """The drive of issue 7 answered 0602 0000 to mapping 60E4h:01 into 1A00h:02: the
+    start-up now plans again without it instead of stopping (AUTO load source)."""
+    with local_rig(SIM_EDS, DriveProfile()) as rig:
+
+        def refuse(index: int, subindex: int, od: object, data: bytes) -> None:
+            if 0x1A00 <= index <= 0x1A03 and subindex and data == struct.pack("<I", 0x60E40120):
+                raise SdoAbortedError(0x0602_0000)
+
+        rig.nodes[2].add_write_callback(refuse)
+        plan, _, _ = rig.master.configure()
+        assert rig.stored(2, 0x1A00, 2) == entry(0x6041, 0, 16)
+    assert rig.master.unmappable == frozenset({(0x60E4, 1)})
+    assert plan.load_source is LoadSource.MOTOR and not plan.layout.load_measured
