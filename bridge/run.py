@@ -71,15 +71,20 @@ def params_for(options: RunOptions) -> BridgeParams:
     return BridgeParams.for_axis(axis, reg)
 
 
-def check_bus_load(fraction: float, bitrate: int, cycle_s: float) -> None:
+def check_bus_load(fraction: float, bitrate: int, cycle_s: float, refuse: bool = True) -> None:
     """Refuse a layout that does not fit into the cycle at ``bitrate`` (BridgeConfigError,
-    nothing written to the drive yet); warn above 80 %."""
+    before anything is written to the drive); warn above 80 %. ``refuse=False`` (the check
+    of the layout the start-up built, the drive already enabled): warn in both cases."""
     text = (
         f"cyclic PDO traffic is {100 * fraction:.0f} % of the bus at {bitrate} bit/s and "
         f"{cycle_s * 1e3:.3g} ms (python -m bridge busload)"
     )
     if fraction > 1.0:
-        raise BridgeConfigError(f"{text}: it does not fit; use --bitrate 1000000 or a longer cycle")
+        message = f"{text}: it does not fit; use --bitrate 1000000 or a longer cycle"
+        if refuse:
+            raise BridgeConfigError(message)
+        log.error("%s", message)
+        return
     if fraction > 0.8:
         log.warning("%s; SDO and heartbeats may delay the RPDO", text)
 
@@ -130,6 +135,7 @@ def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResul
         layout_fraction(bridge.layout, params.cycle_s, options.bus.bitrate),
         options.bus.bitrate,
         params.cycle_s,
+        refuse=False,
     )
     c = bridge.controller
     for move in options.moves:
