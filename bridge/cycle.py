@@ -1,7 +1,8 @@
 """The per-SYNC controller: pure and stepped (no bus, no clock, no threads).
 
-:meth:`CycleController.step` gets the payloads of the drive's TPDO1/TPDO2 of one SYNC (or
-``None`` for a missing one) and the control time, and returns the RPDO1 payload (controlword,
+:meth:`CycleController.step` gets the payloads of the frames of one SYNC in the order of its
+:class:`~bridge.layout.CycleLayout` (the contract's: the drive's TPDO1, TPDO2; ``None`` for a
+missing one) and the control time, and returns the RPDO1 payload (controlword,
 target velocity). Between cycles the I/O layer reports heartbeats and EMCYs
 (:meth:`~CycleController.on_heartbeat`, :meth:`~CycleController.on_emcy`), and the SDO server
 changes parameters, sends commands and starts moves.
@@ -22,6 +23,7 @@ Running, per SYNC k (docs/canopen_layout.md: the set point takes effect at SYNC 
 from __future__ import annotations
 
 import logging
+import struct
 from enum import Enum, IntEnum
 
 from canopen.profiles.p402 import State402
@@ -30,9 +32,9 @@ from regulator import BacklashRegulator, PositionController
 
 from .errors import ParameterError, SdoAbort
 from .interpolator import Interpolator, Move, Table
-from .layout import RPDO1_STRUCT, TPDO1_STRUCT, TPDO2_STRUCT
+from .layout import CycleLayout, Signal, contract_layout
 from .params import LOCKED, BridgeParams
-from .scaling import MOTOR_INCREMENTS_PER_RAD, MOTOR_RAD_PER_INCREMENT, Scaling
+from .scaling import Scaling
 
 log = logging.getLogger("bridge")
 
@@ -127,6 +129,15 @@ def enable_controlword(state: Drive402State, last_controlword: int) -> int:
     return cw
 
 
+#: index of each signal in the controller's raw sample list
+_SLOT = {
+    Signal.MOTOR_POSITION: 0,
+    Signal.LOAD_POSITION: 1,
+    Signal.STATUSWORD: 2,
+    Signal.TORQUE: 3,
+    Signal.MOTOR_VELOCITY: 4,
+}
+
 CW_STOPPED = State402.CW_QUICK_STOP
 CW_DISABLED = State402.CW_SWITCH_ON
 CW_RUNNING = State402.CW_OPERATION_ENABLED
@@ -141,6 +152,7 @@ class CycleController:
         params: BridgeParams,
         scaling: Scaling,
         state: BridgeState = BridgeState.ENABLING,
+        layout: CycleLayout | None = None,
     ) -> None:
         self.scaling = scaling
         self.state = state
@@ -150,9 +162,8 @@ class CycleController:
         self._build(params)
         self.interpolator = Interpolator(params.cycle_s)
         self._pending: list[Move | Table] = []
-        self._rpdo = bytearray(RPDO1_STRUCT.size)
-        self._unit_per_inc = scaling.load_unit_per_increment
-        self._nm_per_permille = scaling.torque_nm_per_permille
+        self.set_layout(layout or contract_layout(2))
+        self.set_scaling(scaling)
         # measurements (SI) and their history for extrapolation
         self.now_s = 0.0
         self.motor_position_rad = 0.0
@@ -180,6 +191,10 @@ class CycleController:
         self._heartbeat_at: float | None = None
         self._heartbeat_state = NMT_OPERATIONAL
         self._enable_started_s: float | None = None
+        #: node-ID of a CiA 406 encoder supplying the load position (heartbeat-supervised)
+        self.encoder_id: int | None = None
+        self._encoder_heartbeat_at: float | None = None
+        self._encoder_state = NMT_OPERATIONAL
 
     # --- configuration ---------------------------------------------------------------------
     def _build(self, params: BridgeParams) -> None:
@@ -193,6 +208,23 @@ class CycleController:
         self.scaling = scaling
         self._unit_per_inc = scaling.load_unit_per_increment
         self._nm_per_permille = scaling.torque_nm_per_permille
+        self._rad_per_inc = scaling.motor_rad_per_increment
+        self._rad_s_per_unit = 1.0 / scaling.velocity_units_per_rad_s
+        self._units_per_rad_s = scaling.velocity_units_per_rad_s
+
+    def set_layout(self, layout: CycleLayout) -> None:
+        """Decode the frames of ``layout`` from the next step on (start-up only)."""
+        self.layout = layout
+        self._decoders = tuple(
+            (struct.Struct(f.fmt).unpack, tuple(_SLOT[s] for s in f.signals)) for f in layout.frames
+        )
+        self._rpdo_struct = struct.Struct(layout.rpdo_fmt)
+        self._rpdo = bytearray(self._rpdo_struct.size)
+        self._load_measured = layout.load_measured
+        frame_of = {s: i for i, f in enumerate(layout.frames) for s in f.signals}
+        self._position_frame = frame_of[Signal.MOTOR_POSITION]
+        self._load_frame = frame_of.get(Signal.LOAD_POSITION, self._position_frame)
+        self._raw = [0, 0, 0, 0, 0]
 
     @property
     def rpdo_payload(self) -> bytearray:
@@ -227,6 +259,11 @@ class CycleController:
         self._heartbeat_at = now_s
         self._heartbeat_state = nmt_state & 0x7F
 
+    def on_encoder_heartbeat(self, nmt_state: int, now_s: float) -> None:
+        """A heartbeat of the CiA 406 encoder node (:attr:`encoder_id`) at ``now_s``."""
+        self._encoder_heartbeat_at = now_s
+        self._encoder_state = nmt_state & 0x7F
+
     def on_emcy(self, error_code: int, error_register: int) -> None:
         """An EMCY of the drive; code 0000h (error reset) only clears the stored code."""
         self.drive_error_code = error_code
@@ -238,6 +275,8 @@ class CycleController:
         heartbeats during start-up); monitoring begins with the next heartbeat."""
         self._heartbeat_at = None
         self._heartbeat_state = NMT_OPERATIONAL
+        self._encoder_heartbeat_at = None
+        self._encoder_state = NMT_OPERATIONAL
         self._emcy_pending = None
 
     def command(self, command: Command) -> None:
@@ -321,15 +360,16 @@ class CycleController:
         return (self.state is BridgeState.RUNNING and self.interpolator.busy) or bool(self._pending)
 
     # --- the cycle -------------------------------------------------------------------------
-    def step(self, now_s: float, tpdo1: bytes | None, tpdo2: bytes | None) -> bytearray:
-        """One SYNC: measurements in, RPDO1 payload (controlword, 60FFh) out.
+    def step(self, now_s: float, *frames: bytes | None) -> bytearray:
+        """One SYNC: measurements in, RPDO payload (controlword, 60FFh) out.
 
-        ``tpdo1``/``tpdo2``: payloads of the right length, or None when missing this cycle.
-        The returned bytearray is reused by the next call.
+        ``frames``: one payload of the right length per frame of :attr:`layout` (the
+        contract's: TPDO1, TPDO2), or None when missing this cycle. The returned bytearray
+        is reused by the next call.
         """
         self.cycles += 1
         self.now_s = now_s
-        self._measure(tpdo1, tpdo2)
+        self._measure(frames)
         state = self.state
         if state is BridgeState.RUNNING:
             self._run()
@@ -341,24 +381,41 @@ class CycleController:
             self._output(CW_DISABLED, 0.0)
         return self._rpdo
 
-    def _measure(self, tpdo1: bytes | None, tpdo2: bytes | None) -> None:
-        if tpdo2 is not None:
-            sw, torque, speed_inc = TPDO2_STRUCT.unpack(tpdo2)
-            self.statusword = sw
-            self.motor_torque_nm = torque * self._nm_per_permille
-            self.motor_speed_rad_s = speed_inc * MOTOR_RAD_PER_INCREMENT
-        if tpdo1 is not None:
-            pos_inc, load_inc = TPDO1_STRUCT.unpack(tpdo1)
-            load = load_inc * self._unit_per_inc
+    def _measure(self, frames: tuple[bytes | None, ...]) -> None:
+        raw = self._raw
+        missing = False
+        if len(frames) != len(self._decoders):
+            raise ValueError(f"{len(frames)} frames for a layout of {len(self._decoders)}")
+        for (unpack, slots), data in zip(self._decoders, frames):  # noqa: B905 (checked)
+            if data is None:
+                missing = True
+                continue
+            for slot, value in zip(slots, unpack(data)):  # noqa: B905 (same length)
+                raw[slot] = value
+        position_in = frames[self._position_frame] is not None
+        load_in = frames[self._load_frame] is not None
+        # raw: motor position, load position, statusword, torque, motor velocity
+        self.statusword = raw[2]
+        self.motor_torque_nm = raw[3] * self._nm_per_permille
+        self.motor_speed_rad_s = raw[4] * self._rad_s_per_unit
+        if position_in:
+            self.motor_position_rad = raw[0] * self._rad_per_inc
+        elif self._have_sample:  # extrapolate over the lost sample
+            self.motor_position_rad += self.motor_speed_rad_s * self._cycle_s
+        if not self._load_measured:  # position feedback = motor
+            load_in = position_in
+            raw[1] = 0
+            load = self.motor_position_rad / self._kr
+        else:
+            load = raw[1] * self._unit_per_inc
+        if load_in:
             if self._have_sample:
                 self._load_speed = (load - self.load_position) / self._cycle_s
             self.load_position = load
-            self.motor_position_rad = pos_inc * MOTOR_RAD_PER_INCREMENT
             self._have_sample = True
-        elif self._have_sample:  # extrapolate over the lost sample
+        elif self._have_sample:
             self.load_position += self._load_speed * self._cycle_s
-            self.motor_position_rad += self.motor_speed_rad_s * self._cycle_s
-        if tpdo1 is None or tpdo2 is None:
+        if missing:
             self.consecutive_missed += 1
             self.missed_cycles += 1
         else:
@@ -396,6 +453,24 @@ class CycleController:
                     f"drive heartbeat reports {what} 0x{self._heartbeat_state:02X}, "
                     f"not operational (0x05)",
                 )
+        if self._encoder_heartbeat_at is not None:
+            return self._supervise_encoder(self._encoder_heartbeat_at)
+        return False
+
+    def _supervise_encoder(self, last_s: float) -> bool:
+        p = self.params
+        if p.heartbeat_consumer_ms and self.now_s - last_s > p.heartbeat_consumer_ms / 1000.0:
+            return self._stop(
+                StopReason.HEARTBEAT_LOST,
+                f"no heartbeat of encoder node {self.encoder_id} for {self.now_s - last_s:.3f} s"
+                f" (1016h consumer time {p.heartbeat_consumer_ms} ms)",
+            )
+        if self._encoder_state != NMT_OPERATIONAL:
+            return self._stop(
+                StopReason.DRIVE_NMT,
+                f"encoder node {self.encoder_id} heartbeat reports NMT state "
+                f"0x{self._encoder_state:02X}, not operational (0x05)",
+            )
         return False
 
     def _enable(self) -> None:
@@ -488,8 +563,8 @@ class CycleController:
     def _output(self, controlword: int, omega_r: float) -> None:
         self.controlword = controlword
         self.omega_r = omega_r
-        RPDO1_STRUCT.pack_into(
-            self._rpdo, 0, controlword, round(omega_r * MOTOR_INCREMENTS_PER_RAD)
+        self._rpdo_struct.pack_into(
+            self._rpdo, 0, controlword, round(omega_r * self._units_per_rad_s)
         )
 
     def _clear_motion(self) -> None:

@@ -137,6 +137,10 @@ class ObjectServer:
         self._last_target = 0
         self.writes_refused = 0
 
+    def set_load_scaling(self, load_increments_per_unit: float) -> None:
+        """Scale 2010h-2012h like the load position the start-up found (increments/unit)."""
+        self._inc_per_unit = load_increments_per_unit
+
     def attach(self, node: canopen.LocalNode) -> None:
         node.add_read_callback(self.on_read)
         node.add_write_callback(self.on_write)
