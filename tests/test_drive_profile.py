@@ -11,7 +11,7 @@ from pathlib import Path
 import can
 import canopen
 import pytest
-from adapt_helpers import ENCODER_EDS, TECHNOSOFT_EDS, mirror_mode
+from adapt_helpers import ENCODER_EDS, TECHNOSOFT_EDS, mirror_mode, require_eds
 
 from bridge.__main__ import build_parser, main
 from bridge.cycle import BridgeState, StopReason
@@ -97,7 +97,7 @@ def test_probe_command_against_a_localnode_writes_the_profile(
     server.NOTIFIER_CYCLE = 0.02
     server.connect(interface="virtual", channel=channel)
     try:
-        node = canopen.LocalNode(2, canopen.import_od(str(TECHNOSOFT_EDS), 2))
+        node = canopen.LocalNode(2, canopen.import_od(str(require_eds(TECHNOSOFT_EDS)), 2))
         mirror_mode(node)
         server.add_node(node)
         out = tmp_path / "ipos.toml"
