@@ -22,8 +22,8 @@ from virtual_bus import BusConfig, Interface, VirtualBusError
 from virtual_bus.errors import BusUnavailableError
 
 from . import od as objdict
-from .commission import command as config_command
 from . import probe as probe_command
+from .commission import command as config_command
 from .eds import render_eds
 from .errors import BridgeError, DriveSetupError
 from .interpolator import Move, load_move_file, parse_move
