@@ -3,19 +3,23 @@ namespace created and always removed, own frames not echoed (as on a CAN control
 
 from __future__ import annotations
 
-import os
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from virtual_bus import BusConfig, open_bus
 from virtual_bus.errors import BusConfigError, NetnsError
-from virtual_bus.netns import NetworkNamespace, netns_problem, private_namespace_problem
+from virtual_bus.netns import NetworkNamespace, private_namespace_problem
 from virtual_bus.udp import LoopbackUdpBus
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def netns_ok(netns_skip_reason: str | None) -> None:
+    if netns_skip_reason is not None:
+        pytest.skip(netns_skip_reason)
 
 
 def test_udp_multicast_is_refused_where_the_host_has_interfaces() -> None:
@@ -28,26 +32,14 @@ def test_udp_multicast_is_refused_where_the_host_has_interfaces() -> None:
         BusConfig(interface="udp_multicast")
 
 
-@pytest.fixture(scope="module")
-def netns_reason() -> str | None:
-    return netns_problem()
-
-
-@pytest.fixture
-def can_netns(netns_reason: str | None) -> Iterator[None]:
-    if netns_reason is not None:
-        pytest.skip(f"cannot create a network namespace here: {netns_reason}")
-    yield
-
-
-def test_namespace_is_removed_when_the_block_fails(can_netns: None) -> None:
+def test_namespace_is_removed_when_the_block_fails(netns_ok: None) -> None:
     with pytest.raises(RuntimeError, match="boom"), NetworkNamespace.create() as ns:
         assert ns.exists()
         raise RuntimeError("boom")
     assert not ns.exists()
 
 
-def test_a_taken_name_is_one_clear_error_and_the_first_namespace_stays(can_netns: None) -> None:
+def test_a_taken_name_is_one_clear_error_and_the_first_namespace_stays(netns_ok: None) -> None:
     with NetworkNamespace.create() as first:
         with pytest.raises(NetnsError, match="netns add"):
             NetworkNamespace.create(first.name)
@@ -74,10 +66,10 @@ finally:
 """
 
 
-def test_inside_a_namespace_frames_cross_and_own_frames_do_not_echo(can_netns: None) -> None:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    with NetworkNamespace.create() as ns:
-        done = ns.run([sys.executable, "-c", ECHO], timeout_s=60, env=env)
+def test_inside_a_namespace_frames_cross_and_own_frames_do_not_echo(
+    private_netns: NetworkNamespace, subprocess_env: dict[str, str]
+) -> None:
+    done = private_netns.run([sys.executable, "-c", ECHO], timeout_s=60, env=subprocess_env)
     assert done.returncode == 0, done.stderr
     assert done.stdout.splitlines() == ["None", "0x101 239.74.163.2 0x102 239.74.163.2"]
 
