@@ -18,6 +18,8 @@ import can
 
 from plant_sim.axis import AxisConfig, load_axis
 from plant_sim.errors import PlantSimError
+from regulator import RegulatorConfig
+from regulator.errors import RegulatorError
 from virtual_bus import BusConfig, Interface, VirtualBusError
 from virtual_bus.errors import BusUnavailableError
 
@@ -90,6 +92,14 @@ def default_store_path(axis_path: Path) -> Path:
 
 def _read_axis(path: Path) -> AxisConfig:
     return load_axis(path)
+
+
+def _regulated_axis(path: Path) -> AxisConfig:
+    """The axis file, refused (RegulatorError) when the regulator cannot run on it (e.g. a
+    position cycle above section VII's sampling limit), before anything is written."""
+    axis = load_axis(path)
+    RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
+    return axis
 
 
 # --- the parser ---------------------------------------------------------------------------------
@@ -249,7 +259,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         moves += load_move_file(args.move_file)
     options = RunOptions(
         bus=BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate),
-        axis=_read_axis(args.axis),
+        axis=_regulated_axis(args.axis),
         bridge=BridgeConfig(
             node_id=args.node_id,
             drive_id=args.drive_id,
@@ -284,7 +294,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import print_summary, run_demo
 
-    axis = _read_axis(args.axis)
+    axis = _regulated_axis(args.axis)
     interface = Interface.VIRTUAL if args.bus == "virtual" else Interface.SOCKETCAN
     summary = run_demo(args.out, axis, str(args.axis), interface)
     print_summary(summary, args.out)
@@ -307,7 +317,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.skip_lockstep and args.skip_realtime:
         raise UsageError("--skip-lockstep and --skip-realtime together leave nothing to run")
     run_bench(
-        _read_axis(args.axis),
+        _regulated_axis(args.axis),
         cycles=args.cycles,
         seconds=None if args.skip_realtime else args.seconds,
         lockstep=not args.skip_lockstep,
@@ -344,6 +354,8 @@ COMMANDS = {
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    # the bridge's master reports a failed SDO transfer itself, with object and tries
+    logging.getLogger("canopen.sdo.client").setLevel(logging.CRITICAL)
     where = f"{PROG} {args.command}"
     try:
         return COMMANDS[args.command](args)
@@ -353,6 +365,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BusUnavailableError as exc:
         print(f"{where}: {exc}", file=sys.stderr)
         return 1
+    except RegulatorError as exc:
+        axis = getattr(args, "axis", None)
+        print(
+            f"{where}: error: {axis}: the regulator cannot run on this axis: {exc}", file=sys.stderr
+        )
+        return 2
     except (UsageError, BridgeError, PlantSimError, VirtualBusError) as exc:
         print(f"{where}: error: {exc}", file=sys.stderr)
         return 2

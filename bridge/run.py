@@ -15,6 +15,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import can
+
 from plant_sim.axis import AxisConfig
 from regulator import RegulatorConfig
 from virtual_bus import BusConfig, bus_load, open_bus
@@ -27,7 +29,7 @@ from .layout import CycleLayout
 from .node import Bridge, BridgeConfig
 from .objects import params_with_store
 from .params import BridgeParams
-from .recorder import BusLog, TraceRecorder
+from .recorder import BusLog, TraceRecorder, log_channel
 from .scaling import LOAD_INCREMENTS_PER_UNIT
 from .store import ParameterStore
 from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
@@ -109,6 +111,14 @@ def run_bridge(options: RunOptions) -> RunResult:
             options.bridge.drive_id,
             ParameterStore(store_path),
         )
+    bus = open_bus(options.bus)  # first: a bus that cannot open is the one thing to say
+    try:
+        return _run_on(bus, options, params)
+    finally:
+        bus.shutdown()
+
+
+def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunResult:
     _, load = layout_load(1, params.cycle_s, options.bus.bitrate)
     check_bus_load(load.load_fraction, options.bus.bitrate, params.cycle_s)
     pacer: Pacer = (
@@ -116,29 +126,25 @@ def run_bridge(options: RunOptions) -> RunResult:
         if options.time_mode is TimeMode.REAL_TIME
         else LockstepPacer(params.cycle_s)
     )
-    bus = open_bus(options.bus)
+    recorder = TraceRecorder(options.trace_path, keep=False) if options.trace_path else None
+    bus_log = None
+    if options.bus_log_path is not None:
+        bus_log = BusLog(options.bus_log_path, channel=log_channel(options.bus))
+    bridge = Bridge(
+        bus,
+        params,
+        options.axis.kind,
+        pacer,
+        config=options.bridge,
+        recorder=recorder,
+        bus_log=bus_log,
+        keep_timing=True,
+    )
+    _command_line_over_store(bridge, options)
     try:
-        recorder = TraceRecorder(options.trace_path, keep=False) if options.trace_path else None
-        bus_log = None
-        if options.bus_log_path is not None:
-            bus_log = BusLog(options.bus_log_path, pacer.now, channel=options.bus.channel or "can")
-        bridge = Bridge(
-            bus,
-            params,
-            options.axis.kind,
-            pacer,
-            config=options.bridge,
-            recorder=recorder,
-            bus_log=bus_log,
-            keep_timing=True,
-        )
-        _command_line_over_store(bridge, options)
-        try:
-            return _loop(bridge, options, bridge.controller.params)
-        finally:
-            bridge.close()
+        return _loop(bridge, options, bridge.controller.params)
     finally:
-        bus.shutdown()
+        bridge.close()
 
 
 def _command_line_over_store(bridge: Bridge, options: RunOptions) -> None:

@@ -10,19 +10,41 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from typing import NoReturn
+
+from regulator.errors import RegulatorError
 
 from .errors import PlantSimError
 
-COMMANDS = ("paper", "sweep", "bench", "simulate", "identify", "diagnose", "monitor", "monitor_bench")
+COMMANDS = (
+    "paper",
+    "sweep",
+    "bench",
+    "simulate",
+    "identify",
+    "diagnose",
+    "drive",
+    "monitor",
+    "monitor_bench",
+)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error message (no usage dump) and exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
 def _parser() -> tuple[argparse.ArgumentParser, dict[str, object]]:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="python -m plant_sim",
         description="Servo-axis simulator, paper reproduction and diagnosis "
         "(Mohammadiasl, 'Vibration Detection and Backlash Suppression in Machine Tools').",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=_Parser
+    )
     modules: dict[str, object] = {}
     for name in COMMANDS:
         try:
@@ -43,6 +65,14 @@ def main(argv: list[str] | None = None) -> int:
     module = modules[args.command]
     try:
         return int(module.run(args))  # type: ignore[attr-defined]
+    except RegulatorError as exc:
+        axis = getattr(args, "axis", None)
+        print(
+            f"python -m plant_sim {args.command}: {axis}: the regulator cannot run on this "
+            f"axis: {exc}",
+            file=sys.stderr,
+        )
+        return 2
     except (PlantSimError, OSError) as exc:
         print(f"python -m plant_sim {args.command}: {exc}", file=sys.stderr)
         return 2

@@ -1,7 +1,7 @@
 """The bridge's start-up against real drives' EDS files, answered by python canopen's own
 LocalNode (tests/adapt_helpers.py), over a python-can virtual bus.
 
-Independent references: the vendors' EDS files (shared/vendor_eds/README.md, beside the repository) -- the
+Independent references: the vendors' EDS files (shared/vendor_eds/README.md) -- the
 expected layout, mode and scaling below are read off them by hand, with the line of the EDS
 named -- and canopen's own PDO machinery, which encodes the CiA 406 encoder's TPDO from the
 mapping the bridge wrote. A LocalNode runs no CiA 402 state machine, so these tests stop

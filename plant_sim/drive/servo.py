@@ -47,6 +47,7 @@ from .protection import (
     axis_torque_limit_nm,
     emcy_data_int32,
     encoder_discrepancy,
+    setpoint_timeout_data,
 )
 
 logger = logging.getLogger(__name__)
@@ -100,7 +101,9 @@ class ServoAxis:
         rated_mnm = round(self.config.rated_torque_nm * 1000)
         t.set_default(O.RATED_TORQUE, rated_mnm)
         limit = self.axis.control.torque_limit
-        max_permille = 0xFFFF if limit is None else min(0xFFFF, round(1e6 * limit / rated_mnm))
+        # 6072h is UNSIGNED16: a larger (or no) axis limit leaves 0xFFFF ‰ of 6076h
+        permille = math.inf if limit is None else 1e6 * limit / rated_mnm
+        max_permille = round(permille) if permille < 0xFFFF else 0xFFFF
         t.set_default(O.MAX_TORQUE, max_permille)
         try:
             value, index = O.interpolation_period(self.axis.control.position_cycle)
@@ -258,9 +261,11 @@ class ServoAxis:
         return difference <= self._table.value(O.ENCODER_TOLERANCE)
 
     def _setpoint_timeout(self) -> None:
-        """No RPDO for 2102h SYNCs: EMCY 0x8250 and the 6007h reaction."""
-        self._errors.set(EMCY_RPDO_TIMEOUT)
+        """No RPDO for 2102h SYNCs: EMCY 0x8250 naming the cause (:func:`setpoint_timeout_data`)
+        and the 6007h reaction."""
         option = self._table.value(O.ABORT_CONNECTION_OPTION)
+        cycles = self._table.value(O.SETPOINT_TIMEOUT)
+        self._errors.set(EMCY_RPDO_TIMEOUT, setpoint_timeout_data(cycles, option))
         if option == 1:
             self._fault(EMCY_RPDO_TIMEOUT)
         elif option == 2:
