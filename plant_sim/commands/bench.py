@@ -16,6 +16,7 @@ import platform
 import resource
 import statistics
 import time
+from dataclasses import asdict, is_dataclass
 
 from virtual_bus import cli
 from virtual_bus.progress import Progress
@@ -119,7 +120,8 @@ def run(args: argparse.Namespace) -> int:
                 results[func] = "not installed"
                 continue
             progress.stage(f"{func} ({module})")
-            results[func] = bench()
+            value = bench()
+            results[func] = asdict(value) if is_dataclass(value) else value  # type: ignore[arg-type]
     print("\n".join(_lines(results)))
     if args.json:
         args.json.write_text(json.dumps(results, indent=2, default=str) + "\n")

@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         extra["as_given_files"] = as_given_note
         extra["files_written"] = [*more.get("files_written", []), *as_given_files]  # type: ignore[misc]
         print(f"note: {more['finding']}")
-        runs = _runs(axis, progress, "friction.viscous = " + str(axis.friction.viscous))
+        runs = _runs(axis, progress, f"friction.viscous = {axis.friction.viscous:g} N m s/m")
     progress.stage("figures and summary")
     summary = write_paper_outputs(args.out, runs, axis, scenario, extra)
     print(json.dumps({k: summary[k] for k in ("band_hz", "runs", "p2p_reduction")}, indent=2))
