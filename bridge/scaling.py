@@ -27,8 +27,7 @@ MOTOR_INCREMENTS_PER_RAD = MOTOR_INCREMENTS_PER_REV / (2.0 * math.pi)
 MOTOR_RAD_PER_INCREMENT = 1.0 / MOTOR_INCREMENTS_PER_RAD
 #: Load-scale increments (60E4h:01) per load unit: nm per m, µrad per rad.
 LOAD_INCREMENTS_PER_UNIT = {AxisKind.LINEAR: 1e9, AxisKind.ROTARY: 1e6}
-#: Range of INTEGER32 objects.
-INT32_MIN = -(1 << 31)
+#: Largest INTEGER32 value.
 INT32_MAX = (1 << 31) - 1
 
 
@@ -64,8 +63,3 @@ class Scaling:
         """N·m per 6077h unit (per mille of the rated torque)."""
         return self.rated_torque_nm / 1000.0
 
-
-def speed_to_increments(speed_rad_s: float) -> int:
-    """Motor speed in rad/s to 60FFh increments/s, rounded and clamped to INTEGER32."""
-    inc = round(speed_rad_s * MOTOR_INCREMENTS_PER_RAD)
-    return INT32_MAX if inc > INT32_MAX else INT32_MIN if inc < INT32_MIN else inc
