@@ -20,8 +20,8 @@ from .scenarios import P2P_START_S, SectionX
 from .trace import Trace
 
 #: A vibration whose FFT amplitude in the following error is below this fraction of the total
-#: backlash δ is "none" (a backlash limit cycle has an amplitude of about δ/2: the sweep shows
-#: 0.5·δ in every vibrating cell and at most 0.01·δ elsewhere) ...
+#: backlash δ is "none" (a backlash limit cycle has an amplitude of the order of δ/2: the sweep
+#: measures 0.45–0.68·δ in the vibrating cells and at most 0.01·δ elsewhere) ...
 VIBRATION_FLOOR_OF_BACKLASH = 0.05
 #: ... and never below this absolute floor (load units), for axes without backlash.
 VIBRATION_FLOOR = 1e-6
