@@ -140,7 +140,7 @@ def run_demo(
         extra.update(more)
         extra["as_given_files"] = as_given_note
         extra["files_written"] = [*more.get("files_written", []), *as_given_files, *logs]  # type: ignore[misc]
-        progress.stage(more["finding"])  # type: ignore[arg-type]
+        progress.stage("the axis as given shows no limit cycle: both runs again, lower friction")
         runs, variant_info = bus_runs(
             axis,
             out_dir,
