@@ -18,7 +18,7 @@ from ..axis import load_axis
 from ..diagnose.effects import Effect
 from ..diagnose.engine import DiagnosisOptions, diagnose
 from ..diagnose.replay import prepare_replay
-from ..diagnose.report import write_report
+from ..diagnose.report import REPORT_FILES, write_report
 from ..errors import TraceWarning
 from ..trace import check_time_base, read_trace
 from .common import plain_warnings
@@ -102,8 +102,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"simulation fit (nominal -> fitted): {fits}")
     for a in diagnosis.ambiguous:
         print(f"ambiguous: {a.named.value} or {a.alternative.value}; to tell: {a.experiment}")
-    print(
-        f"report: {out / 'report.json'} ({diagnosis.timings_s['total']:.1f} s, "
-        f"{diagnosis.n_simulations} simulations)"
-    )
+    print(f"took {diagnosis.timings_s['total']:.1f} s, {diagnosis.n_simulations} simulations")
+    written = [name for name in REPORT_FILES if (out / name).exists()]
+    print(f"wrote {out}/: " + ", ".join(written))
     return 0
