@@ -62,4 +62,3 @@ class Scaling:
     def torque_nm_per_permille(self) -> float:
         """N·m per 6077h unit (per mille of the rated torque)."""
         return self.rated_torque_nm / 1000.0
-

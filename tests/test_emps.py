@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import scipy.io
 
+from plant_sim.__main__ import main
 from plant_sim.axis import load_axis
 from plant_sim.emps import (
     DATA_DIR,
@@ -24,7 +25,6 @@ from plant_sim.emps import (
     import_emps,
     read_emps_mat,
 )
-from plant_sim.__main__ import main
 from plant_sim.errors import ScenarioError
 from plant_sim.force_error import compare_force, relative_force_error, replay
 from plant_sim.trace import Trace, read_trace
