@@ -45,7 +45,7 @@ class Bar:
                 total=total, desc=desc, unit=unit, file=progress.stream, leave=False, delay=0.5
             )
         else:
-            size = f" ({total} {unit}s)" if total else ""
+            size = f" ({total} {unit}{'' if total == 1 else 's'})" if total else ""
             progress.stage(f"{desc}{size}")
 
     def update(self, n: int = 1) -> None:
