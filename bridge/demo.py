@@ -21,12 +21,19 @@ import numpy as np
 
 from plant_sim.axis import AxisConfig
 from plant_sim.model import AxisPlant, KernelOptions
-from plant_sim.report import limit_cycle_variant, summarize, write_paper_outputs
+from plant_sim.report import (
+    files_line,
+    limit_cycle_variant,
+    summarize,
+    write_as_given,
+    write_paper_outputs,
+)
 from plant_sim.scenarios import SectionX
 from plant_sim.simulate import simulate
 from plant_sim.trace import Trace
 from regulator import RegulatorConfig
 from virtual_bus import Interface
+from virtual_bus.progress import Progress, silent
 
 from .cycle import BridgeState
 from .errors import BridgeError
@@ -61,12 +68,19 @@ def bus_runs(
     scenario: SectionX,
     interface: Interface,
     prefix: str = "",
+    progress: Progress | None = None,
+    label: str = "",
 ) -> tuple[dict[str, Trace], dict[str, object]]:
     """Both runs of section X over the bus; traces and per-run bridge figures."""
+    progress = progress or silent()
     traces: dict[str, Trace] = {}
     info: dict[str, object] = {}
     refs = scenario.references(axis)
     for name, enabled in RUNS:
+        progress.stage(
+            f"{label}{name} run over the {interface.value} bus: {refs.position.size} cycles in "
+            "lockstep, then the offline simulation to compare"
+        )
         reg = RegulatorConfig(
             kv=axis.control.kv, cycle_s=axis.control.position_cycle, enabled=enabled
         )
@@ -94,16 +108,24 @@ def bus_runs(
 
 
 def run_demo(
-    out_dir: Path, axis: AxisConfig, axis_name: str, interface: Interface = Interface.VIRTUAL
+    out_dir: Path,
+    axis: AxisConfig,
+    axis_name: str,
+    interface: Interface = Interface.VIRTUAL,
+    progress: Progress | None = None,
 ) -> dict[str, object]:
-    """Everything ``python -m bridge demo`` does; returns summary.json's content. An axis
-    the bridge or the physics cannot run is refused before ``out_dir`` is made."""
+    """Everything ``python -m bridge demo`` does; returns summary.json's content (its
+    "files" lists every file written). An axis the bridge or the physics cannot run is
+    refused before ``out_dir`` is made."""
     reg = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
     BridgeParams.for_axis(axis, reg)  # the bridge's scaling limits
     AxisPlant(axis)  # the physics' limits (substeps)
+    progress = progress or silent()
     out_dir.mkdir(parents=True, exist_ok=True)
     scenario = SectionX()
-    runs, info = bus_runs(axis, out_dir, scenario, interface)
+    runs, info = bus_runs(
+        axis, out_dir, scenario, interface, progress=progress, label="axis as given: "
+    )
     extra: dict[str, object] = {
         "axis_file": axis_name,
         "bridge": {"bus": interface.value, "time_mode": "lockstep", "runs": info},
@@ -112,18 +134,36 @@ def run_demo(
     decided = limit_cycle_variant(axis, published, axis_name, out_dir)
     if decided is not None:
         # as python -m plant_sim paper does: the axis as given damps the limit cycle out
+        logs = []
         for name in runs:
-            (out_dir / f"{name}.csv").rename(out_dir / f"as_given_{name}.csv")
+            (out_dir / f"{name}.csv").unlink()
             (out_dir / f"bus_{name}.log").rename(out_dir / f"as_given_bus_{name}.log")
+            logs.append(f"as_given_bus_{name}.log")
+        as_given_files, as_given_note = write_as_given(out_dir, runs)
         axis, more = decided
         extra.update(more)
-        runs, variant_info = bus_runs(axis, out_dir, scenario, interface)
+        extra["as_given_files"] = as_given_note
+        extra["files_written"] = [*more.get("files_written", []), *as_given_files, *logs]  # type: ignore[misc]
+        progress.stage("the axis as given shows no limit cycle: both runs again, lower friction")
+        runs, variant_info = bus_runs(
+            axis,
+            out_dir,
+            scenario,
+            interface,
+            progress=progress,
+            label=f"friction.viscous = {axis.friction.viscous:g} N m s/m: ",
+        )
         extra["bridge"] = {
             "bus": interface.value,
             "time_mode": "lockstep",
             "runs": variant_info,
             "as_given_runs": info,
         }
+    extra["files_written"] = [
+        *extra.get("files_written", []),  # type: ignore[misc]
+        *(f"bus_{name}.log" for name in runs),
+    ]
+    progress.stage("figures and summary")
     return write_paper_outputs(out_dir, runs, axis, scenario, extra)
 
 
@@ -141,7 +181,6 @@ def print_summary(summary: dict[str, object], out_dir: Path) -> None:
             f"{cmp['max_beta_difference_rad_s']:.3g} rad/s, lambda "
             f"{cmp['max_lambda_difference']:.3g}"
         )
-    print(
-        f"wrote {out_dir}/fig8.png, fig9.png, summary.json, ordinary.csv, regulated.csv, "
-        "bus_ordinary.log, bus_regulated.log"
-    )
+    if "finding" in summary:
+        print(f"note: {summary['finding']}")
+    print(files_line(out_dir, summary))

@@ -31,8 +31,7 @@ MOTOR_INCREMENTS_PER_RAD = MOTOR_INCREMENTS_PER_REV / (2.0 * math.pi)
 MOTOR_RAD_PER_INCREMENT = 1.0 / MOTOR_INCREMENTS_PER_RAD
 #: Load-scale increments (60E4h:01) per load unit: nm per m, µrad per rad.
 LOAD_INCREMENTS_PER_UNIT = {AxisKind.LINEAR: 1e9, AxisKind.ROTARY: 1e6}
-#: Range of INTEGER32 objects.
-INT32_MIN = -(1 << 31)
+#: Largest INTEGER32 value (60FFh).
 INT32_MAX = (1 << 31) - 1
 
 
@@ -97,11 +96,3 @@ class Scaling:
         """606Ch / 60FFh units per motor rad/s."""
         return self.velocity_units_per_rev_s / (2.0 * math.pi)
 
-
-def speed_to_increments(
-    speed_rad_s: float, units_per_rad_s: float = MOTOR_INCREMENTS_PER_RAD
-) -> int:
-    """Motor speed in rad/s to 60FFh units (contract: increments/s), rounded and clamped to
-    INTEGER32."""
-    inc = round(speed_rad_s * units_per_rad_s)
-    return INT32_MAX if inc > INT32_MAX else INT32_MIN if inc < INT32_MIN else inc

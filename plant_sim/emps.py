@@ -33,13 +33,11 @@ value) and the speed actual value measured one cycle earlier. Hence, with record
     motor_torque[k] = gtau*(vir(k-1) - pulses_N(k-1)),  motor_speed[k] = dqm(k-1)
 
 The first three samples are dropped (dqm(k-1) needs qm(k-3)). Run as
-``python -m plant_sim.emps import --out DIR`` (see ``--help``).
+``python -m plant_sim emps --out DIR`` (see ``--help``).
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -183,8 +181,8 @@ def read_emps_mat(path: str | Path) -> EmpsRecording:
     if (steps <= 0).any():
         i = int(np.argmax(steps <= 0)) + 1
         raise EmpsFileError(
-            f"{path}: variable 't', sample {i}: {signals['t'][i]!r} does not increase "
-            f"(previous {signals['t'][i - 1]!r})",
+            f"{path}: variable 't', sample {i}: {float(signals['t'][i])!r} does not increase "
+            f"(previous {float(signals['t'][i - 1])!r})",
             variable="t",
         )
     gains = {name: _gain(path, doc, name) for name in GAINS}
@@ -263,50 +261,10 @@ def import_emps(sources: Sequence[str | Path], out_dir: str | Path) -> list[Impo
     return done
 
 
-# --------------------------------------------------------------------------------------------
-# command line: python -m plant_sim.emps import --out DIR
-# --------------------------------------------------------------------------------------------
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m plant_sim.emps",
-        description="EMPS recordings (shared/data/emps) -> servo trace CSV files.",
-    )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    imp = sub.add_parser(
-        "import",
-        help="convert EMPS .mat files to trace files",
-        description="Convert EMPS .mat files (MATLAB v5) to trace files OUT/<stem>.csv "
-        "(shared/spec/trace-file.md; columns and timing: docs/emps.md).",
-    )
-    imp.add_argument(
-        "mat",
-        nargs="*",
-        type=Path,
-        help=f"EMPS .mat files; default: {ESTIMATION_FILE} and {VALIDATION_FILE} in {DATA_DIR}",
-    )
-    imp.add_argument("--out", type=Path, required=True, help="output directory")
-    return parser
+if __name__ == "__main__":  # the former entry point; the command is python -m plant_sim emps
+    import sys
 
+    from plant_sim.__main__ import main
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    sources = args.mat or [DATA_DIR / ESTIMATION_FILE, DATA_DIR / VALIDATION_FILE]
-    try:
-        done = import_emps(sources, args.out)
-    except (PlantSimError, OSError) as exc:
-        print(f"python -m plant_sim.emps import: {exc}", file=sys.stderr)
-        return 2
-    for item in done:
-        rec = item.recording
-        print(
-            f"{item.target}: {item.rows} rows, "
-            f"{rec.time_s[-1] - rec.time_s[0]:.2f} s, gtau = {rec.gtau_n_per_v:g} N/V, "
-            f"kp = {rec.kp_per_s:g} 1/s, kv = {rec.kv_v_s_per_m:g} V s/m, pulses: "
-            f"{'yes' if rec.has_pulses else 'no'}, control-law residual "
-            f"{control_law_residual_v(rec):.3g} V rms"
-        )
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    argv = sys.argv[1:]
+    sys.exit(main(["emps", *(argv[1:] if argv[:1] == ["import"] else argv)]))

@@ -24,28 +24,24 @@ loop. For scoring, :func:`replay_substeps` refines the step until the speed loop
 the step is at most ``LOOP_RATE_DT`` (EMPS: 45 steps per 1 ms cycle; the force error is then
 within ~0.02 percentage points of the converged value, against 1.9 points with one step).
 
-Run as ``python -m plant_sim.force_error --axis AXIS.toml TRACE.csv ...``.
+Run as ``python -m plant_sim force_error --axis AXIS.toml TRACE.csv ...``.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
-from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from regulator import RegulatorConfig
 from regulator.errors import RegulatorConfigError
 
-from .axis import AxisConfig, PositionFeedback, load_axis
-from .errors import PlantSimError, ScenarioError
+from .axis import AxisConfig, PositionFeedback
+from .errors import ScenarioError
 from .model import KernelOptions, default_substeps
 from .simulate import References, simulate
-from .trace import Trace, read_trace, uniform_step
+from .trace import Trace, check_time_base, uniform_step
 
 #: s, start of the comparison window (the authors' n_border = 50 samples at 1 kHz).
 SETTLE_S = 0.049
@@ -81,6 +77,7 @@ def replay_substeps(axis: AxisConfig) -> int:
 
 def _check_timing(axis: AxisConfig, trace: Trace) -> None:
     cycle = axis.control.position_cycle
+    check_time_base(trace, cycle)
     step = uniform_step(trace)
     if step is None:
         raise ScenarioError("trace: time is not uniformly sampled; replay needs one row per cycle")
@@ -163,31 +160,10 @@ def relative_force_error(
     return compare_force(trace, replay(axis, trace, options), settle_s)
 
 
-# --------------------------------------------------------------------------------------------
-# command line: python -m plant_sim.force_error --axis AXIS.toml TRACE.csv ...
-# --------------------------------------------------------------------------------------------
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m plant_sim.force_error",
-        description="Relative force error 100*||F_meas - F_sim||/||F_meas|| (percent) of an "
-        "axis file simulated in the loop of each recording (docs/emps.md).",
-    )
-    parser.add_argument("traces", nargs="+", type=Path, help="trace files (CSV)")
-    parser.add_argument("--axis", type=Path, required=True, help="axis file (TOML)")
-    args = parser.parse_args(argv)
-    try:
-        axis = load_axis(args.axis)
-        results = [(path, relative_force_error(axis, read_trace(path))) for path in args.traces]
-    except (PlantSimError, OSError) as exc:
-        print(f"python -m plant_sim.force_error: {exc}", file=sys.stderr)
-        return 2
-    for path, result in results:
-        print(
-            f"{path}: {result.percent:.3f} % ({result.rows} rows, error {result.error_rms:.4g} "
-            f"rms of {result.measured_rms:.4g} rms)"
-        )
-    return 0
+if __name__ == "__main__":  # the former entry point; the command is python -m plant_sim force_error
+    import sys
 
+    from plant_sim.__main__ import main
 
-if __name__ == "__main__":
-    sys.exit(main())
+    argv = sys.argv[1:]
+    sys.exit(main(["force_error", *(argv[1:] if argv[:1] == ["import"] else argv)]))

@@ -101,7 +101,7 @@ class IdentifyOptions:
             ("initial_step", self.initial_step, 1e-4, 0.9),
         ):
             if not (math.isfinite(value) and low < value <= high):
-                raise ScenarioError(f"{name} = {value!r}: allowed range ({low:g}, {high:g}]")
+                raise ScenarioError(f"{name} = {float(value):g}: allowed range ({low:g}, {high:g}]")
         if not 10 <= self.max_evaluations <= 100_000:
             raise ScenarioError(f"max_evaluations = {self.max_evaluations}: allowed 10..100000")
 
@@ -184,8 +184,9 @@ def _start_values(
         signed = key in SIGNED_KEYS
         if value is None or not math.isfinite(value) or value == 0.0 or (value < 0 and not signed):
             allowed = "!= 0" if signed else "> 0"
+            shown = "none" if value is None else f"{float(value):g}"
             raise ScenarioError(
-                f"{key}: start value {value!r}; identification needs a start {allowed} (set it "
+                f"{key}: start value {shown}; identification needs a start {allowed} (set it "
                 f"in the axis file or give --start {key}=VALUE)"
             )
         values[key] = float(value)
@@ -199,11 +200,13 @@ def identify(
     start: Mapping[str, float] | None = None,
     options: IdentifyOptions = IdentifyOptions(),
     clock: Callable[[], float] = time.perf_counter,
+    on_evaluation: Callable[[], None] | None = None,
 ) -> IdentificationResult:
     """Section IX: Nelder-Mead on the simulation error (module docstring).
 
     ``start`` overrides the axis file's values as starting point; ``clock`` measures
-    ``elapsed_s`` (injectable). Raises ScenarioError / AxisFileError on bad input.
+    ``elapsed_s`` (injectable); ``on_evaluation`` is called after each simulation (progress).
+    Raises ScenarioError / AxisFileError / TraceFileError on bad input.
     """
     keys = options.parameters
     x0 = _start_values(axis, keys, start)
@@ -213,6 +216,8 @@ def identify(
         return axis.with_values({k: float(v) for k, v in zip(keys, x * scale, strict=True)})
 
     def cost(x: np.ndarray) -> float:
+        if on_evaluation is not None:
+            on_evaluation()
         try:
             return simulation_cost(axis_at(x), trace, options.kernel)
         except AxisFileError:

@@ -20,8 +20,8 @@ from .scenarios import P2P_START_S, SectionX
 from .trace import Trace
 
 #: A vibration whose FFT amplitude in the following error is below this fraction of the total
-#: backlash δ is "none" (a backlash limit cycle has an amplitude of about δ/2: the sweep shows
-#: 0.5·δ in every vibrating cell and at most 0.01·δ elsewhere) ...
+#: backlash δ is "none" (a backlash limit cycle has an amplitude of the order of δ/2: the sweep
+#: measures 0.45–0.68·δ in the vibrating cells and at most 0.01·δ elsewhere) ...
 VIBRATION_FLOOR_OF_BACKLASH = 0.05
 #: ... and never below this absolute floor (load units), for axes without backlash.
 VIBRATION_FLOOR = 1e-6
@@ -66,10 +66,18 @@ def summarize(trace: Trace, axis: AxisConfig, scenario: SectionX = SectionX()) -
 
 
 def plot_section_x(
-    trace: Trace, axis: AxisConfig, path: Path, title: str, with_lambda: bool
+    trace: Trace,
+    axis: AxisConfig,
+    path: Path,
+    title: str,
+    with_lambda: bool,
+    scenario: SectionX = SectionX(),
+    note: str | None = None,
 ) -> None:
-    """Fig. 8 / Fig. 9 panels: A following errors (eq. 1 vs load vs motor), B disturbance
-    torque, C vibration level β, D switching factor λ (regulated run)."""
+    """Fig. 8 / Fig. 9 panels: A following errors (eq. 1 vs load vs motor) over the run,
+    A' the same zoomed onto the time after the disturbance (where the limit cycle lives, µm),
+    B disturbance torque, C vibration level β, D switching factor λ (regulated run).
+    ``note``: what differs from the paper, written under the title."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -81,32 +89,78 @@ def plot_section_x(
     eq1 = trace["omega_s"] / (kr * kv) if "omega_s" in trace else np.gradient(x_ref, t) / kv
     e_load = x_ref - trace["load_position"]
     e_motor = x_ref - trace["motor_position"] / kr
-    scale, unit = (1e3, "mm") if axis.load_unit == "m" else (1e3, "mrad")
-    n_panels = 4 if with_lambda else 3
-    fig, axes = plt.subplots(n_panels, 1, sharex=True, figsize=(9, 2.1 * n_panels + 0.6))
-    a = axes[0]
-    a.plot(t, e_load * scale, lw=0.8, label="load following error $x_{ref}-x_l$")
-    a.plot(
-        t, e_motor * scale, lw=0.8, alpha=0.8, label=r"motor following error $x_{ref}-\theta_m/k_r$"
+    unit = "mm" if axis.load_unit == "m" else "mrad"
+    fine = "µm" if axis.load_unit == "m" else "µrad"
+    n_panels = 5 if with_lambda else 4
+    heights = [1.3, 1.3, 0.8, 0.8] + ([0.6] if with_lambda else [])
+    fig, axes = plt.subplots(
+        n_panels, 1, figsize=(9, 1.75 * sum(heights) + 1.6), height_ratios=heights
     )
-    a.plot(t, eq1 * scale, "k--", lw=1.0, label="eq. 1: speed / $k_v$")
+    a = axes[0]
+    a.plot(t, e_load * 1e3, lw=0.8, label="load following error $x_{ref}-x_l$")
+    a.plot(
+        t, e_motor * 1e3, lw=0.8, alpha=0.8, label=r"motor following error $x_{ref}-\theta_m/k_r$"
+    )
+    a.plot(t, eq1 * 1e3, "k--", lw=1.0, label="eq. 1: speed / $k_v$")
     a.set_ylabel(f"A  error [{unit}]")
-    a.legend(loc="upper right", fontsize=7)
-    axes[1].plot(t, trace["disturbance"], color="C3", lw=1.0)
-    axes[1].set_ylabel("B  disturbance\n[N m at motor]")
-    axes[2].plot(t, trace["beta"], color="C2", lw=1.0)
-    axes[2].set_ylabel(r"C  $\beta$ [rad/s]")
+    # legend above the panel: it covers no data
+    a.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize=7, frameon=False)
+    z0 = scenario.disturbance_end_s + SETTLE_AFTER_DISTURBANCE_S
+    z1 = scenario.stop_s
+    # up to two position cycles before the interpolator stops (eq. 1 drops to 0 there)
+    zoom = (t >= z0) & (t < z1 - 2 * axis.control.position_cycle)
+    a.axvspan(z0, z1, color="0.92", zorder=0)
+    a.annotate("A'", xy=((z0 + z1) / 2, 0.02), xycoords=("data", "axes fraction"), fontsize=8)
+    z = axes[1]
+    z.plot(t[zoom], e_load[zoom] * 1e6, lw=0.8, color="C0")
+    z.plot(t[zoom], e_motor[zoom] * 1e6, lw=0.8, alpha=0.8, color="C1")
+    z.plot(t[zoom], eq1[zoom] * 1e6, "k--", lw=1.0)
+    shown = np.concatenate([e_load[zoom], e_motor[zoom]]) * 1e6
+    lo, hi = float(shown.min()), float(shown.max())
+    pad = 0.15 * (hi - lo) + 1e-3
+    z.set_ylim(lo - pad, hi + pad)
+    z.set_xlim(z0, z1)
+    z.set_ylabel(f"A' error [{fine}]")
+    p2p = float(np.ptp(e_load[zoom])) * 1e6
+    z.set_title(
+        f"A' zoom on {z0:g}–{z1:g} s (shaded in A): load following error peak-to-peak "
+        f"{p2p:.3g} {fine}",
+        fontsize=8,
+        loc="left",
+    )
+    axes[2].plot(t, trace["disturbance"], color="C3", lw=1.0)
+    axes[2].set_ylabel("B  disturbance\n[N m at motor]")
+    axes[3].plot(t, trace["beta"], color="C2", lw=1.0)
+    axes[3].set_ylabel(r"C  $\beta$ [rad/s]")
     if with_lambda:
-        axes[3].plot(t, trace["lambda"], color="C4", lw=1.0)
-        axes[3].set_ylabel(r"D  $\lambda$")
-        axes[3].set_ylim(-0.05, 1.05)
-    axes[-1].set_xlabel("time [s]")
+        axes[4].plot(t, trace["lambda"], color="C4", lw=1.0)
+        axes[4].set_ylabel(r"D  $\lambda$ [1]")
+        axes[4].set_ylim(-0.05, 1.05)
     for ax in axes:
         ax.grid(True, alpha=0.3)
+        ax.set_xlabel("time [s]", fontsize=8)
+    for ax in (axes[0], *axes[2:]):
+        ax.set_xlim(t[0], t[-1])
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    if note:
+        fig.text(0.5, 0.005, note, ha="center", va="bottom", fontsize=7.5, color="C3", wrap=True)
+    fig.tight_layout(rect=(0, 0.035 if note else 0, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def changes_note(axis_file: str, changes: Mapping[str, float] | None) -> str | None:
+    """One sentence for a figure: which values differ from the axis file (the paper's)."""
+    if not changes:
+        return None
+    what = ", ".join(f"{k} = {v:g}" for k, v in changes.items())
+    name = Path(axis_file).name
+    return (
+        f"Changed from the paper ({name}): {what} N m s/m (the paper's 57.3 damps the limit "
+        "cycle out: no vibration; docs/paper_reproduction.md)"
+        if set(changes) == {"friction.viscous"}
+        else f"Changed from {name}: {what}"
+    )
 
 
 def write_paper_outputs(
@@ -132,21 +186,67 @@ def write_paper_outputs(
         "ordinary": "Fig. 8: ordinary control (Fig. 1), no regulator",
         "regulated": "Fig. 9: with the speed regulator (Fig. 6, eq. 15)",
     }
+    extra = dict(extra or {})
+    changes = extra.get("figures_axis_changes")
+    note = changes_note(
+        str(extra.get("axis_file", "the axis file")),
+        changes if isinstance(changes, Mapping) else None,
+    )
+    files = [str(f) for f in extra.pop("files_written", [])]
     for name, trace in runs.items():
         trace.to_csv(out_dir / f"{name}.csv")
+        files.append(f"{name}.csv")
         summary["runs"][name] = asdict(summarize(trace, axis, scenario))  # type: ignore[index]
         if name in figures:
             fig, with_lambda = figures[name]
-            plot_section_x(trace, axis, out_dir / fig, titles[name], with_lambda)
+            title = titles[name]
+            if changes:
+                title += " — " + ", ".join(f"{k} = {v:g}" for k, v in changes.items())
+                if set(changes) == {"friction.viscous"}:
+                    title += " N m s/m, not the paper's 57.3"
+            plot_section_x(trace, axis, out_dir / fig, title, with_lambda, scenario, note)
+            files.append(fig)
     runs_summary = summary["runs"]
     if isinstance(runs_summary, dict) and {"ordinary", "regulated"} <= runs_summary.keys():
         before = runs_summary["ordinary"]["p2p_following_error"]
         after = runs_summary["regulated"]["p2p_following_error"]
         summary["p2p_reduction"] = 1.0 - after / before if before > 0 else None
-    if extra:
-        summary.update(extra)
+    summary.update(extra)
+    files.append("summary.json")
+    summary["files"] = sorted(set(files))
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def files_line(out_dir: Path, summary: Mapping[str, object]) -> str:
+    """The one summary line of what a command wrote: ``wrote DIR/: a, b, c``."""
+    names = summary.get("files", [])
+    listed = ", ".join(str(n) for n in names) if isinstance(names, list) else ""
+    return f"wrote {out_dir}/: {listed}"
+
+
+def write_as_given(out_dir: Path, runs: Mapping[str, Trace]) -> tuple[list[str], str]:
+    """Write the runs of the axis as given: ``as_given_{run}.csv``, or one ``as_given.csv``
+    when the runs are identical -- with the paper's friction the ordinary run never vibrates,
+    so β never reaches β_T, the regulator keeps λ = 1 and the regulated run is the ordinary
+    one sample for sample. Returns the file names and a sentence saying which it was."""
+    traces = list(runs.values())
+    same = all(
+        t.names == traces[0].names
+        and all(np.array_equal(t[c], traces[0][c]) for c in traces[0].names)
+        for t in traces[1:]
+    )
+    if same and len(traces) > 1:
+        traces[0].to_csv(out_dir / "as_given.csv")
+        return ["as_given.csv"], (
+            "as_given.csv: the axis as given; its runs with and without the regulator are "
+            "identical (no vibration, so beta stays below beta_T and lambda stays 1)"
+        )
+    names = []
+    for name, trace in runs.items():
+        trace.to_csv(out_dir / f"as_given_{name}.csv")
+        names.append(f"as_given_{name}.csv")
+    return names, "as_given_{run}.csv: the runs of the axis as given"
 
 
 #: N·m per (m/s) at the motor: guideway viscous friction low enough for the limit cycle (the
@@ -166,7 +266,7 @@ def limit_cycle_variant(
         return None
     variant = axis.with_values({"friction.viscous": LIMIT_CYCLE_VISCOUS})
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "axis_limit_cycle.toml").write_text(
+    (out_dir / "axis_limit_cycle.toml").write_text(  # listed in extra["files_written"]
         dump_axis(variant, f"{axis_name} with friction.viscous = {LIMIT_CYCLE_VISCOUS}")
     )
     extra: dict[str, object] = {
@@ -178,5 +278,6 @@ def limit_cycle_variant(
             f"with friction.viscous = {LIMIT_CYCLE_VISCOUS} N m s/m."
         ),
         "figures_axis_changes": {"friction.viscous": LIMIT_CYCLE_VISCOUS},
+        "files_written": ["axis_limit_cycle.toml"],
     }
     return variant, extra

@@ -22,6 +22,13 @@ from .errors import TraceFileError, TraceWarning
 
 REQUIRED_COLUMNS = ("time", "motor_position", "motor_torque")
 MIN_ROWS = 100
+#: Largest magnitude of a value in a spec column: beyond it squares and sums over a recording
+#: overflow float64 (1e150² · 10⁷ rows < 1.8e308), so such a file is refused, not computed on.
+MAX_MAGNITUDE = 1e150
+#: Most sample times per position cycle a replay accepts (beyond: time is not in seconds).
+MAX_CYCLES_PER_SAMPLE = 1000
+#: Most position cycles a replay of one trace may simulate (10⁸: 28 h at 1 ms).
+MAX_REPLAY_CYCLES = 100_000_000
 
 #: Columns of the spec with their units (extra columns are allowed and kept).
 COLUMN_UNITS = {
@@ -170,7 +177,8 @@ def read_trace(path: str | Path, required: Sequence[str] = REQUIRED_COLUMNS) -> 
     """Read and check a trace file; raises TraceFileError naming the column or row."""
     path = Path(path)
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the first name
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.reader(fh))
     except FileNotFoundError as exc:
         raise TraceFileError(f"{path}: no such trace file") from exc
@@ -208,11 +216,23 @@ def read_trace(path: str | Path, required: Sequence[str] = REQUIRED_COLUMNS) -> 
                     row=line,
                 ) from None
     for j, name in enumerate(header):
+        if not (name in required or name in COLUMN_UNITS):
+            continue
         bad = ~np.isfinite(data[:, j])
-        if bad.any() and (name in required or name in COLUMN_UNITS):
+        if bad.any():
             line = int(np.argmax(bad)) + 2
             raise TraceFileError(
-                f"{path}: line {line}, column {name!r}: {data[line - 2, j]} (NaN/inf not allowed)",
+                f"{path}: line {line}, column {name!r}: {float(data[line - 2, j])} "
+                "(NaN/inf not allowed)",
+                column=name,
+                row=line,
+            )
+        huge = np.abs(data[:, j]) > MAX_MAGNITUDE
+        if huge.any():
+            line = int(np.argmax(huge)) + 2
+            raise TraceFileError(
+                f"{path}: line {line}, column {name!r}: {float(data[line - 2, j]):.6g} is "
+                f"beyond ±{MAX_MAGNITUDE:g} (computations on it overflow)",
                 column=name,
                 row=line,
             )
@@ -221,8 +241,8 @@ def read_trace(path: str | Path, required: Sequence[str] = REQUIRED_COLUMNS) -> 
     if (steps <= 0).any():
         line = int(np.argmax(steps <= 0)) + 3
         raise TraceFileError(
-            f"{path}: line {line}, column 'time': {time[line - 2]!r} does not increase "
-            f"(previous {time[line - 3]!r}); time must be strictly increasing",
+            f"{path}: line {line}, column 'time': {float(time[line - 2])!r} does not increase "
+            f"(previous {float(time[line - 3])!r}); time must be strictly increasing",
             column="time",
             row=line,
         )
@@ -236,3 +256,26 @@ def uniform_step(trace: Trace, rel_tol: float = 1e-3) -> float | None:
     dt = np.diff(trace.time)
     step = float(np.median(dt))
     return step if np.all(np.abs(dt - step) <= rel_tol * step) and math.isfinite(step) else None
+
+
+def check_time_base(trace: Trace, cycle_s: float, source: str = "trace") -> None:
+    """Refuse a trace whose time column cannot be seconds for an axis of position cycle
+    ``cycle_s`` before anything is simulated on its time base (shared by identify,
+    force_error, simulate and diagnose): more than :data:`MAX_CYCLES_PER_SAMPLE` position
+    cycles per sample, or more than :data:`MAX_REPLAY_CYCLES` cycles in all (a time in ms or
+    ns would otherwise ask for a replay of years)."""
+    dt = float(np.median(np.diff(trace.time)))
+    span = float(trace.time[-1] - trace.time[0])
+    hint = "time must be in s (is it in ms, µs or ns?)"
+    if dt > MAX_CYCLES_PER_SAMPLE * cycle_s:
+        raise TraceFileError(
+            f"{source}: median sample time {dt:.6g} s is {dt / cycle_s:.3g} position cycles of "
+            f"{cycle_s:g} s, allowed at most {MAX_CYCLES_PER_SAMPLE}; {hint}",
+            column="time",
+        )
+    if span / cycle_s > MAX_REPLAY_CYCLES:
+        raise TraceFileError(
+            f"{source}: time spans {span:.6g} s = {span / cycle_s:.3g} position cycles of "
+            f"{cycle_s:g} s, allowed at most {MAX_REPLAY_CYCLES:g}; {hint}",
+            column="time",
+        )

@@ -82,6 +82,11 @@ RUN = ["run", "--interface", "virtual", "--channel", "nobody-here", "--axis", AX
         (["busload", "--axes", "0"], "must be >= 1"),
         (["busload", "--cycle-us", "abc"], "not a number"),
         (["demo"], "--out"),
+        (["demo", "--out", "README.md"], "exists and is not a directory"),
+        (
+            ["run", "--channel", "x", "--interface", "virtual", "--axis", AXIS_FILE, "--hold", "0"],
+            "> 0",
+        ),
         (["bench", "--skip-lockstep", "--skip-realtime"], "nothing to run"),
         (["config", "get", "--interface", "virtual", "--channel", "x", "2000h"], "--node-id"),
         (["config", "fly"], "invalid choice"),
@@ -112,6 +117,19 @@ def test_busload_of_one_axis(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["busload", "--bitrate", "1000000", "--axes", "3"]) == 0
     out = capsys.readouterr().out
     assert "total 1210 bits" in out and "does NOT fit" in out
+
+
+def test_eds_prints_to_stdout_and_leaves_the_tracked_file_alone(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from bridge.od import DEFAULT_EDS_PATH
+
+    before = DEFAULT_EDS_PATH.stat().st_mtime_ns
+    assert main(["eds"]) == 0
+    out = capsys.readouterr().out
+    assert out == DEFAULT_EDS_PATH.read_text(encoding="utf-8")  # the tracked file is current
+    assert "[FileInfo]" in out
+    assert DEFAULT_EDS_PATH.stat().st_mtime_ns == before
 
 
 def test_eds_check(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

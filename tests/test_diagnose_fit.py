@@ -19,7 +19,6 @@ from plant_sim.diagnose.fit import (
     Parameter,
     axis_with,
     fit,
-    periodic_pseudo,
 )
 from plant_sim.diagnose.replay import prepare_replay
 from plant_sim.diagnose.synthetic import slide_axis
@@ -58,16 +57,21 @@ def test_parameter_transforms_and_bounds() -> None:
         Parameter("friction.coulomb", 0.0, 1.0, 0.5, 0.1, log=True)
 
 
-def test_periodic_pseudo_keys_round_trip() -> None:
+@pytest.mark.parametrize(("c", "s"), [(0.03, -0.04), (-0.05, 0.0), (-0.01, -0.02)])
+def test_periodic_pseudo_keys_become_amplitude_and_phase(c: float, s: float) -> None:
+    """What the fit uses (axis_with): A·cos φ and A·sin φ -> amplitude and phase, against
+    the complex number c + i·s (numpy's abs and angle), in every quadrant."""
     base = truth_axis().with_values(
         {"disturbance.periodic_amplitude": 0.0, "disturbance.periodic_period": 0.01}
     )
-    axis = axis_with(base, {PERIODIC_COS: 0.03, PERIODIC_SIN: -0.04})
-    assert axis.disturbance.periodic_amplitude == pytest.approx(0.05)
-    assert axis.disturbance.periodic_phase == pytest.approx(math.atan2(-0.04, 0.03))
-    back = periodic_pseudo(axis)
-    assert back[PERIODIC_COS] == pytest.approx(0.03)
-    assert back[PERIODIC_SIN] == pytest.approx(-0.04)
+    axis = axis_with(base, {PERIODIC_COS: c, PERIODIC_SIN: s})
+    assert axis.disturbance.periodic_amplitude == pytest.approx(abs(complex(c, s)))
+    assert axis.disturbance.periodic_phase == pytest.approx(float(np.angle(complex(c, s))))
+    # the torque the kernel gets, A·sin(2πx/p + φ), is c·sin(2πx/p) + s·cos(2πx/p)
+    x = np.linspace(0.0, 0.02, 7)
+    w = 2 * math.pi * x / 0.01
+    a, phi = axis.disturbance.periodic_amplitude, axis.disturbance.periodic_phase
+    np.testing.assert_allclose(a * np.sin(w + phi), c * np.sin(w) + s * np.cos(w), atol=1e-15)
 
 
 @pytest.mark.parametrize("factor", [0.6, 1.6])

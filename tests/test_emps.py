@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import scipy.io
 
+from plant_sim.__main__ import main
 from plant_sim.axis import load_axis
 from plant_sim.emps import (
     DATA_DIR,
@@ -22,7 +23,6 @@ from plant_sim.emps import (
     VALIDATION_FILE,
     EmpsFileError,
     import_emps,
-    main,
     read_emps_mat,
 )
 from plant_sim.errors import ScenarioError
@@ -71,7 +71,7 @@ def test_importer_cli_bad_file_exits_2_one_line_and_writes_nothing(
 ) -> None:
     bad = _write_mat(tmp_path / "nothing.mat", x=np.zeros((5, 1)))
     out = tmp_path / "out"
-    assert main(["import", str(DATA_DIR / ESTIMATION_FILE), str(bad), "--out", str(out)]) == 2
+    assert main(["emps", str(DATA_DIR / ESTIMATION_FILE), str(bad), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "missing variable(s)" in err
     assert not out.exists()  # every file is checked before anything is written
@@ -97,7 +97,7 @@ def test_importer_refuses_mismatched_lengths(tmp_path: Path) -> None:
 
 def test_cli_help_exits_0(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as info:
-        main(["import", "--help"])
+        main(["emps", "--help"])
     assert info.value.code == 0 and "--out" in capsys.readouterr().out
 
 

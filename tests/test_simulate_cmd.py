@@ -122,7 +122,11 @@ def test_bad_input_exit_2(
     elif mutate == "bad_dir":
         out = tmp_path / "missing" / "sim.csv"
     Trace(cols).to_csv(like)
-    assert main(["simulate", "--axis", str(toml), "--like", str(like), "--out", str(out)]) == 2
+    try:
+        code = main(["simulate", "--axis", str(toml), "--like", str(like), "--out", str(out)])
+    except SystemExit as exc:  # refused by the argument parser
+        code = exc.code
+    assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and needle in err[0], err
     assert not out.exists()

@@ -501,10 +501,11 @@ def test_cli_bad_arguments_exit_2(argv: list[str], capsys: pytest.CaptureFixture
 
 def test_cli_probe_reports_choice_and_reason(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["probe"], probe=VCAN_HOST) == 0
-    assert capsys.readouterr().out.splitlines()[0] == "mode: socketcan channel: vcan0"
-    assert main(["probe", "--channel", "vcan7"], probe=NO_KERNEL) == 0
+    assert capsys.readouterr().out.splitlines()[0] == "bus: SocketCAN on vcan0"
+    assert main(["probe", "--channel", "can0"], probe=NO_KERNEL) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[0] == "mode: virtual channel: vcan7"
+    # the fallback is the in-process bus, not "virtual on can0"
+    assert out[0] == "bus: python-can's in-process virtual bus (SocketCAN can0 not used)"
     assert "AF_CAN" in out[1]
 
 

@@ -16,7 +16,10 @@ import platform
 import resource
 import statistics
 import time
-from pathlib import Path
+from dataclasses import asdict, is_dataclass
+
+from virtual_bus import cli
+from virtual_bus.progress import Progress
 
 from ..model import KernelOptions, default_substeps
 from ..reference import simulate_reference
@@ -30,36 +33,55 @@ HELP = "kernel throughput vs the solve_ivp reference, peak memory (and --all: di
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_axis_argument(parser)
-    parser.add_argument("--repeat", type=int, default=20, help="kernel repetitions (median)")
+    parser.add_argument(
+        "--repeat", type=cli.count, default=20, help="kernel repetitions (median; default 20)"
+    )
     parser.add_argument(
         "--reference-seconds",
-        type=float,
+        type=cli.positive_float,
         default=2.0,
         help="seconds of the scenario simulated with solve_ivp (default 2: the smooth part, "
         "where the reference is fastest; over the limit cycle RK45 resolves every sign(v) "
         "switch and the full 7 s took 745 s here)",
     )
     parser.add_argument("--all", action="store_true", help="also the diagnosis benchmarks")
-    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    parser.add_argument("--json", type=cli.new_file, help="also write the figures here (JSON)")
+    cli.add_quiet(parser)
 
 
 def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
 
 
+def _lines(results: dict[str, object], prefix: str = "") -> list[str]:
+    """``key value`` per figure; nested results (the diagnosis benchmark) as dotted keys."""
+    out = []
+    for key, value in results.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out += _lines(value, name + ".")
+        elif isinstance(value, float):
+            out.append(f"{name:40s} {value:.4g}")
+        else:
+            out.append(f"{name:40s} {value}")
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
-    if args.repeat < 1:
-        raise SystemExit("python -m plant_sim bench: --repeat must be >= 1")
+    progress = Progress(f"plant_sim {NAME}", quiet=args.quiet)
     axis = read_axis(args.axis).with_values({"friction.viscous": LIMIT_CYCLE_VISCOUS})
     scenario = SectionX()
     sim_s = scenario.end_s
+    progress.stage("load the compiled kernel")
     run_section_x(axis, True)  # compile / load the cached kernel outside the timing
     walls = []
-    for _ in range(args.repeat):
-        t0 = time.perf_counter()
-        run_section_x(axis, False)
-        run_section_x(axis, True)
-        walls.append((time.perf_counter() - t0) / 2)
+    with progress.bar(args.repeat, "kernel: section X, both runs", unit="repeat") as bar:
+        for _ in range(args.repeat):
+            t0 = time.perf_counter()
+            run_section_x(axis, False)
+            run_section_x(axis, True)
+            walls.append((time.perf_counter() - t0) / 2)
+            bar.update()
     kernel_wall = statistics.median(walls)
     kernel_rss = _peak_rss_mb()
     results: dict[str, object] = {
@@ -77,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     from ..simulate import References
 
     part = References(refs.position[:n], refs.speed[:n], refs.disturbance_nm[:n])
+    progress.stage(f"solve_ivp reference: {ref_s:g} s of section X")
     t0 = time.perf_counter()
     simulate_reference(axis, part)
     ref_wall = time.perf_counter() - t0
@@ -96,9 +119,10 @@ def run(args: argparse.Namespace) -> int:
             except (ModuleNotFoundError, AttributeError):
                 results[func] = "not installed"
                 continue
-            results[func] = bench()
-    for key, value in results.items():
-        print(f"{key:32s} {value:.4g}" if isinstance(value, float) else f"{key:32s} {value}")
+            progress.stage(f"{func} ({module})")
+            value = bench()
+            results[func] = asdict(value) if is_dataclass(value) else value  # type: ignore[arg-type]
+    print("\n".join(_lines(results)))
     if args.json:
         args.json.write_text(json.dumps(results, indent=2, default=str) + "\n")
     return 0

@@ -1,8 +1,12 @@
-"""Argument helpers shared by the ``python -m plant_sim`` commands."""
+"""Helpers shared by the ``python -m plant_sim`` commands (argument types: virtual_bus.cli)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..axis import AxisConfig, load_axis
@@ -17,19 +21,10 @@ def add_axis_argument(parser: argparse.ArgumentParser, default: Path | None = PA
         type=Path,
         default=default,
         required=default is None,
+        metavar="AXIS.toml",
         help="axis file (shared/spec/axis-file.md)"
         + (f"; default {default.relative_to(ROOT)}" if default else ""),
     )
-
-
-def positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number > 0")
-    return value
 
 
 def read_axis(path: Path, position_cycle_s: float | None = None) -> AxisConfig:
@@ -37,3 +32,19 @@ def read_axis(path: Path, position_cycle_s: float | None = None) -> AxisConfig:
     if position_cycle_s is not None:
         axis = axis.with_values({"control.position_cycle": position_cycle_s})
     return axis
+
+
+@contextmanager
+def plain_warnings() -> Iterator[None]:
+    """Warnings raised inside (a trace's implausible unit, ...) are printed as one plain line
+    each, ``warning: MESSAGE`` on stderr, instead of Python's file:line form. When the block
+    fails, only its error is reported (its one line says what is wrong)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    seen: set[str] = set()
+    for w in caught:
+        text = str(w.message)
+        if text not in seen:
+            seen.add(text)
+            print(f"warning: {text}", file=sys.stderr)

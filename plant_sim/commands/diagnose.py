@@ -9,19 +9,19 @@ DIR/fit_after.csv and DIR/report.png (see docs/diagnosis.md).
 from __future__ import annotations
 
 import argparse
-import sys
 import warnings
-from pathlib import Path
+
+from virtual_bus import cli
+from virtual_bus.progress import Progress
 
 from ..axis import load_axis
 from ..diagnose.effects import Effect
 from ..diagnose.engine import DiagnosisOptions, diagnose
-from ..diagnose.errors import DiagnosisInputError
 from ..diagnose.replay import prepare_replay
-from ..diagnose.report import write_report
+from ..diagnose.report import REPORT_FILES, write_report
 from ..errors import TraceWarning
-from ..trace import read_trace
-from .simulate import print_warnings
+from ..trace import check_time_base, read_trace
+from .common import plain_warnings
 
 NAME = "diagnose"
 HELP = (
@@ -33,7 +33,9 @@ HELP = (
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", metavar="RECORDING.csv", help="servo trace (trace-file.md)")
     parser.add_argument("--axis", required=True, metavar="AXIS.toml", help="nominal axis file")
-    parser.add_argument("--out", required=True, metavar="DIR", help="directory for the report")
+    parser.add_argument(
+        "--out", type=cli.output_dir, required=True, metavar="DIR", help="report directory"
+    )
     parser.add_argument(
         "--validate",
         metavar="SECOND.csv",
@@ -60,7 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--jobs", type=int, default=2, help="parallel candidate fits (2)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the global search stage")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    cli.add_quiet(parser)
+    parser.add_argument("--no-progress", action="store_true", help="the same as --quiet")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,34 +75,23 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         effects=tuple(Effect(e) for e in args.effects) if args.effects else tuple(Effect),
     )
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise DiagnosisInputError(f"--out {out}: exists and is not a directory")
+    out = args.out
     axis = load_axis(args.axis)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    cycle = axis.control.position_cycle
+    with plain_warnings():
         recording = read_trace(args.recording)
         validation = read_trace(args.validate) if args.validate else None
         # check that axis and recordings fit together before any long work
+        check_time_base(recording, cycle, str(args.recording))
         prepare_replay(recording, axis, source=str(args.recording))
         if validation is not None:
+            check_time_base(validation, cycle, str(args.validate))
             prepare_replay(validation, axis, source=str(args.validate))
-    print_warnings(caught)
-    from tqdm import tqdm
-
-    bar = tqdm(
-        desc="diagnose",
-        unit="sim",
-        disable=args.no_progress or not sys.stderr.isatty(),
-        file=sys.stderr,
-    )
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", TraceWarning)  # already printed above
-            warnings.simplefilter("ignore", RuntimeWarning)  # unstable trial parameter sets
-            diagnosis = diagnose(recording, axis, validation, options, bar)
-    finally:
-        bar.close()
+    progress = Progress(f"plant_sim {NAME}", quiet=args.quiet or args.no_progress)
+    with progress.bar(None, "diagnose", unit="sim") as bar, warnings.catch_warnings():
+        warnings.simplefilter("ignore", TraceWarning)  # already printed above
+        warnings.simplefilter("ignore", RuntimeWarning)  # unstable trial parameter sets
+        diagnosis = diagnose(recording, axis, validation, options, bar)
     write_report(diagnosis, out, source=str(args.recording))
     left = ", ".join(e.value for e in diagnosis.left_out) or "nothing"
     fits = ", ".join(
@@ -110,8 +102,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"simulation fit (nominal -> fitted): {fits}")
     for a in diagnosis.ambiguous:
         print(f"ambiguous: {a.named.value} or {a.alternative.value}; to tell: {a.experiment}")
-    print(
-        f"report: {out / 'report.json'} ({diagnosis.timings_s['total']:.1f} s, "
-        f"{diagnosis.n_simulations} simulations)"
-    )
+    print(f"took {diagnosis.timings_s['total']:.1f} s, {diagnosis.n_simulations} simulations")
+    written = [name for name in REPORT_FILES if (out / name).exists()]
+    print(f"wrote {out}/: " + ", ".join(written))
     return 0

@@ -11,12 +11,15 @@ import argparse
 import json
 from pathlib import Path
 
+from virtual_bus import cli
+from virtual_bus.progress import Progress
+
 from ..axis import dump_axis
 from ..errors import ScenarioError
 from ..identify import SECTION_IX_PARAMETERS, IdentifyOptions, identify
 from ..model import KernelOptions
-from ..trace import read_trace
-from .common import add_axis_argument, positive_float, read_axis
+from ..trace import check_time_base, read_trace
+from .common import add_axis_argument, plain_warnings, read_axis
 
 NAME = "identify"
 HELP = "identify load mass and friction from a servo trace (paper section IX, Nelder-Mead)"
@@ -32,16 +35,6 @@ def _key_value(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(
             f"{text!r}: expected KEY=VALUE, e.g. mechanics.load_mass=5000"
         ) from None
-
-
-def _substeps(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if not 1 <= value <= 10_000:
-        raise argparse.ArgumentTypeError(f"{text!r}: allowed 1..10000")
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -70,27 +63,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--position-cycle",
-        type=positive_float,
+        type=cli.positive_float,
         default=None,
         metavar="S",
         help="override control.position_cycle (must match the trace's sample time)",
     )
     parser.add_argument(
         "--substeps",
-        type=_substeps,
+        type=cli.bounded_int(1, 10_000),
         default=None,
         metavar="N",
         help="mechanics steps per speed cycle (default: fine enough for the speed loop)",
     )
-    parser.add_argument("--out", type=Path, help="write the identified axis file here")
-    parser.add_argument("--json", type=Path, help="write the JSON summary here")
+    parser.add_argument("--out", type=cli.new_file, help="write the identified axis file here")
+    parser.add_argument("--json", type=cli.new_file, help="write the JSON summary here")
+    cli.add_quiet(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     axis = read_axis(args.axis, args.position_cycle)
     if args.drop:
         axis = axis.with_values(dict.fromkeys(args.drop))
-    trace = read_trace(args.recording)
+    with plain_warnings():
+        trace = read_trace(args.recording)
+        check_time_base(trace, axis.control.position_cycle, str(args.recording))
     start = dict(args.start)
     if len(start) != len(args.start):
         raise ScenarioError("--start: a key is given more than once")
@@ -98,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
         parameters=tuple(args.param) if args.param else SECTION_IX_PARAMETERS,
         kernel=None if args.substeps is None else KernelOptions(substeps=args.substeps),
     )
-    result = identify(trace, axis, start, options)
+    progress = Progress(f"plant_sim {NAME}", quiet=args.quiet)
+    with progress.bar(None, "Nelder-Mead on the closed-loop simulation", unit="sim") as bar:
+        result = identify(trace, axis, start, options, on_evaluation=bar.update)
     summary = {"recording": str(args.recording), "axis_file": str(args.axis), **result.summary()}
     text = json.dumps(summary, indent=2)
     print(text)

@@ -19,10 +19,12 @@ import json
 import sys
 from pathlib import Path
 
+from virtual_bus.progress import Progress
+
 from ..errors import FleetMapError, PlantSimError, SchedulerError
 from ..monitor.demo_fleet import FleetSpec, generate
 from ..monitor.fleet import Limits
-from ..monitor.job import confusion, confusion_markdown, monitor, stage
+from ..monitor.job import confusion, confusion_markdown, monitor
 from ..monitor.sources import discover, load_axis_map
 from .common import positive_float
 
@@ -92,7 +94,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="demo fleet: machines x axes x recordings per axis (default 4x3x12)",
     )
     parser.add_argument("--no-figures", action="store_true", help="tables only")
-    parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
 def _demo_size(text: str) -> FleetSpec:
@@ -104,7 +105,7 @@ def _demo_size(text: str) -> FleetSpec:
 
 
 def run(args: argparse.Namespace) -> int:
-    quiet = args.quiet
+    progress = Progress("plant_sim monitor", quiet=args.quiet)
     if args.out.exists() and not args.out.is_dir():
         raise PlantSimError(f"--out {args.out}: exists and is not a folder")
     paths = list(args.paths)
@@ -116,9 +117,8 @@ def run(args: argparse.Namespace) -> int:
             raise PlantSimError("--demo-size: every count must be >= 1")
         fleet = args.out / "demo_fleet"
         total = spec.machines * spec.axes_per_machine * spec.recordings_per_axis
-        stage(f"simulating a demo fleet of {total} recordings into {fleet}", quiet)
-        _bar = _progress(total, "simulate", quiet)
-        generate(fleet, spec, progress=lambda done, n: _bar(done))
+        with progress.bar(total, f"simulating a demo fleet into {fleet}", "recording") as sim:
+            generate(fleet, spec, progress=lambda done, n: sim.update())
         paths = [fleet]
         truth_file = fleet / "truth.json"
         axis_map = load_axis_map(fleet / "axes.toml")
@@ -135,13 +135,10 @@ def run(args: argparse.Namespace) -> int:
     where = args.scheduler or (
         f"{args.workers} local processes" if args.workers else "this process"
     )
-    stage(f"analysing {len(found.sources)} recordings on {where}", quiet)
-    bar = _progress(len(found.sources), "analyse", quiet)
-    count = [0]
+    bar = progress.bar(len(found.sources), f"analysing on {where}", "recording")
 
     def on_result(result: object) -> None:
-        count[0] += 1
-        bar(count[0])
+        bar.update()
 
     limits = Limits(growth_per_month=args.growth_limit * 1e-6, backlash=args.backlash_limit * 1e-6)
     try:
@@ -157,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
     except SchedulerError as exc:
         print(f"python -m plant_sim monitor: {exc}", file=sys.stderr)
         return 1
+    finally:
+        bar.close()
     for r in result.results:
         if not r.ok:
             print(f"monitor: skipped {r.error}", file=sys.stderr)
@@ -175,30 +174,6 @@ def run(args: argparse.Namespace) -> int:
         print(confusion_markdown(matrix))
     print("wrote " + ", ".join(str(f) for f in result.files))
     return 0 if result.processed else 1
-
-
-def _progress(total: int, label: str, quiet: bool):
-    """A tqdm bar on a terminal, a line per 10 % when not; ``update(done)`` callback."""
-    if quiet:
-        return lambda done: None
-    if sys.stderr.isatty():
-        from tqdm import tqdm
-
-        bar = tqdm(total=total, desc=label, unit="rec", leave=False)
-
-        def update(done: int) -> None:
-            bar.update(done - bar.n)
-            if done >= total:
-                bar.close()
-
-        return update
-    step = max(1, total // 10)
-
-    def line(done: int) -> None:
-        if done % step == 0 or done == total:
-            print(f"monitor: {label} {done}/{total}", file=sys.stderr, flush=True)
-
-    return line
 
 
 __all__ = ["HELP", "NAME", "FleetMapError", "add_arguments", "run"]

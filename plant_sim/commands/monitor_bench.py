@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from virtual_bus.progress import Progress
+
 from ..axis import dump_axis, load_axis
 from ..monitor.analyse import analyse
 from ..monitor.demo_fleet import PAPER_AXIS, TRACE_COLUMNS, simulate_recording
@@ -62,12 +64,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="length of the long recording for the memory check, s (0: skip)",
     )
     parser.add_argument("--json", type=Path, help="write the figures as JSON")
-    parser.add_argument("--quiet", action="store_true", help="no progress lines")
-
-
-def _say(quiet: bool, text: str) -> None:
-    if not quiet:
-        print(f"monitor-bench: {text}", file=sys.stderr, flush=True)
 
 
 def _pool(folder: Path, n: int) -> tuple[list[Path], Path]:
@@ -132,11 +128,11 @@ def _peak_rss_mb(analysis: Source) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    quiet = args.quiet
+    progress = Progress("plant_sim monitor-bench", quiet=args.quiet)
     work = Path(tempfile.mkdtemp(prefix="monitor-bench-"))
     figures: dict[str, object] = {"workers": args.workers, "cpus": os.cpu_count()}
     try:
-        _say(quiet, f"simulating a pool of {args.pool} recordings (25 s, 1 kHz, 7 signals)")
+        progress.stage(f"simulating a pool of {args.pool} recordings (25 s, 1 kHz, 7 signals)")
         pool_dir = work / "pool"
         pool_dir.mkdir()
         pool, axis_file = _pool(pool_dir, args.pool)
@@ -145,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
             fleet = work / f"fleet{n}"
             _fleet(fleet, pool, n)
             found = discover([fleet], axis_file=axis_file)
-            _say(quiet, f"monitoring {n} recordings on {args.workers} local Dask processes")
+            progress.stage(f"monitoring {n} recordings on {args.workers} local Dask processes")
             t0 = time.perf_counter()
             result = monitor(found, work / f"out{n}", workers=args.workers)
             elapsed = time.perf_counter() - t0
@@ -159,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
                     "ms_per_recording": round(elapsed / n * 1000.0, 2),
                 }
             )
-            _say(quiet, f"{n} recordings: {elapsed:.1f} s, {per_min:.0f} recordings/min")
+            progress.stage(f"{n} recordings: {elapsed:.1f} s, {per_min:.0f} recordings/min")
             shutil.rmtree(fleet)
         figures["runs"] = runs
         figures["client_peak_rss_mb"] = round(
@@ -169,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
             resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024, 1
         )
         if args.long_s > 0:
-            _say(quiet, f"memory of one analysis: 25 s against {args.long_s:g} s")
+            progress.stage(f"memory of one analysis: 25 s against {args.long_s:g} s")
             long_path = _long_recording(work, args.long_s)
             figures["analysis_peak_rss_mb"] = {
                 "25 s": _peak_rss_mb(

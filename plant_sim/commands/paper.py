@@ -4,39 +4,50 @@ Runs the axis file (default: the paper's axis) with the ordinary control and wit
 regulator. With the paper's own friction (viscous 57.3 N·m per m/s) the axis shows no
 sustained limit cycle after the disturbance (docs/paper_reproduction.md explains why); the
 command then also runs the same axis with the viscous friction lowered to
-``plant_sim.report.LIMIT_CYCLE_VISCOUS`` — the physical value that makes section X's
-result appear — and draws
-the figures from that variant. summary.json holds both.
+``plant_sim.report.LIMIT_CYCLE_VISCOUS`` — the physical value that makes section X's result
+appear — and draws the figures from that variant, saying so in the figures, on the terminal
+and in summary.json (which holds both).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
+
+from virtual_bus import cli
+from virtual_bus.progress import Progress
 
 from ..axis import AxisConfig
-from ..report import limit_cycle_variant, summarize, write_paper_outputs
+from ..report import (
+    files_line,
+    limit_cycle_variant,
+    summarize,
+    write_as_given,
+    write_paper_outputs,
+)
 from ..scenarios import SectionX, run_section_x
-from .common import add_axis_argument, positive_float, read_axis
+from ..trace import Trace
+from .common import add_axis_argument, read_axis
 
 NAME = "paper"
 HELP = "reproduce the paper's section X (Fig. 8, Fig. 9, summary.json, traces)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
     add_axis_argument(parser)
     parser.add_argument(
         "--position-cycle",
-        type=positive_float,
+        type=cli.positive_float,
         default=None,
         metavar="S",
         help="override control.position_cycle (e.g. 0.0025)",
     )
+    cli.add_quiet(parser)
 
 
-def _runs(axis: AxisConfig) -> dict:
+def _runs(axis: AxisConfig, progress: Progress, label: str) -> dict[str, Trace]:
+    progress.stage(f"section X, {label}: ordinary control and with the regulator")
     return {
         "ordinary": run_section_x(axis, with_regulator=False),
         "regulated": run_section_x(axis, with_regulator=True),
@@ -44,19 +55,23 @@ def _runs(axis: AxisConfig) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    progress = Progress(f"plant_sim {NAME}", quiet=args.quiet)
     axis = read_axis(args.axis, args.position_cycle)
     scenario = SectionX()
-    runs = _runs(axis)
+    runs = _runs(axis, progress, f"axis as given ({args.axis})")
     extra: dict[str, object] = {"axis_file": str(args.axis)}
     published = {name: summarize(tr, axis, scenario) for name, tr in runs.items()}
     decided = limit_cycle_variant(axis, published, str(args.axis), args.out)
     if decided is not None:
-        for name, trace in runs.items():
-            trace.to_csv(args.out / f"as_given_{name}.csv")
+        as_given_files, as_given_note = write_as_given(args.out, runs)
         axis, more = decided
         extra.update(more)
-        runs = _runs(axis)
+        extra["as_given_files"] = as_given_note
+        extra["files_written"] = [*more.get("files_written", []), *as_given_files]  # type: ignore[misc]
+        print(f"note: {more['finding']}")
+        runs = _runs(axis, progress, f"friction.viscous = {axis.friction.viscous:g} N m s/m")
+    progress.stage("figures and summary")
     summary = write_paper_outputs(args.out, runs, axis, scenario, extra)
     print(json.dumps({k: summary[k] for k in ("band_hz", "runs", "p2p_reduction")}, indent=2))
-    print(f"wrote {args.out}/fig8.png, fig9.png, summary.json, ordinary.csv, regulated.csv")
+    print(files_line(args.out, summary))
     return 0

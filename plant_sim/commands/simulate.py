@@ -10,15 +10,14 @@ checked on a second recording. Prints the simulation's fit to the recording per 
 from __future__ import annotations
 
 import argparse
-import sys
-import warnings
-from pathlib import Path
+
+from virtual_bus import cli
 
 from ..axis import load_axis
 from ..diagnose.engine import signal_fits
-from ..diagnose.errors import DiagnosisInputError
 from ..diagnose.replay import like_recording, prepare_replay, replay
-from ..trace import read_trace
+from ..trace import check_time_base, read_trace
+from .common import plain_warnings
 
 NAME = "simulate"
 HELP = (
@@ -35,26 +34,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="RECORDING.csv",
         help="servo trace whose position_reference, disturbance and time base drive the run",
     )
-    parser.add_argument("--out", required=True, metavar="SIM.csv", help="simulated trace to write")
-
-
-def print_warnings(caught: list[warnings.WarningMessage]) -> None:
-    for w in caught:
-        print(f"warning: {w.message}", file=sys.stderr)
+    parser.add_argument(
+        "--out", type=cli.new_file, required=True, metavar="SIM.csv", help="simulated trace"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    out = Path(args.out)
-    if out.is_dir():
-        raise DiagnosisInputError(f"--out {out}: is a directory, expected a CSV file path")
-    if not out.parent.exists():
-        raise DiagnosisInputError(f"--out {out}: directory {out.parent} does not exist")
+    out = args.out
     axis = load_axis(args.axis)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with plain_warnings():
         recording = read_trace(args.like)
+        check_time_base(recording, axis.control.position_cycle, str(args.like))
         inp = prepare_replay(recording, axis, source=str(args.like))
-    print_warnings(caught)
     simulated = replay(axis, inp)
     like_recording(inp, simulated).to_csv(out)
     fits = signal_fits(inp, simulated)

@@ -16,7 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+
+from virtual_bus import cli
+from virtual_bus.progress import Progress, silent
 
 from ..axis import AxisConfig
 from ..report import LIMIT_CYCLE_VISCOUS, summarize
@@ -30,30 +32,20 @@ DEFAULT_KV = (15.0, 20.0, 25.0, 30.0, 40.0, 50.0)
 DEFAULT_BACKLASH_MM = (0.05, 0.1, 0.2, 0.4)
 
 
-def _float_list(text: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated numbers") from None
-    if not values or any(not v > 0 for v in values):
-        raise argparse.ArgumentTypeError(f"{text!r}: every value must be > 0")
-    return values
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
     add_axis_argument(parser)
-    parser.add_argument("--kv", type=_float_list, default=DEFAULT_KV, help="k_v values, 1/s")
-    parser.add_argument(
-        "--backlash-mm", type=_float_list, default=DEFAULT_BACKLASH_MM, help="δ values, mm"
-    )
+    cli.number_list(parser, "--kv", DEFAULT_KV, "k_v values, 1/s")
+    cli.number_list(parser, "--backlash-mm", DEFAULT_BACKLASH_MM, "δ values, mm")
     parser.add_argument(
         "--viscous",
-        type=float,
+        type=cli.bounded_float(0.0, 1e9),
         default=LIMIT_CYCLE_VISCOUS,
+        metavar="B",
         help="friction.viscous for the sweep (N m s/m; default: the limit-cycle variant of "
-        "`paper`; give the axis file's own value to sweep it as is)",
+        "`paper`, not the paper's 57.3; give the axis file's own value to sweep it as is)",
     )
+    cli.add_quiet(parser)
 
 
 @dataclass(frozen=True)
@@ -68,13 +60,21 @@ class Cell:
         return self.frequency_hz is not None and self.kv / 4 <= self.frequency_hz <= self.kv
 
 
-def sweep(axis: AxisConfig, kvs: tuple[float, ...], backlash_m: tuple[float, ...]) -> list[Cell]:
+def sweep(
+    axis: AxisConfig,
+    kvs: tuple[float, ...],
+    backlash_m: tuple[float, ...],
+    progress: Progress | None = None,
+) -> list[Cell]:
+    progress = progress or silent()
     cells = []
-    for kv in tqdm(kvs, desc="sweep k_v", unit="k_v", leave=False):
-        for delta in backlash_m:
-            variant = axis.with_values({"control.kv": kv, "mechanics.backlash": delta})
-            s = summarize(run_section_x(variant, with_regulator=False), variant, SectionX())
-            cells.append(Cell(kv, delta, s.dominant_frequency_hz, s.vibration_amplitude))
+    with progress.bar(len(kvs) * len(backlash_m), "section X per (k_v, δ)", unit="cell") as bar:
+        for kv in kvs:
+            for delta in backlash_m:
+                variant = axis.with_values({"control.kv": kv, "mechanics.backlash": delta})
+                s = summarize(run_section_x(variant, with_regulator=False), variant, SectionX())
+                cells.append(Cell(kv, delta, s.dominant_frequency_hz, s.vibration_amplitude))
+                bar.update()
     return cells
 
 
@@ -101,27 +101,53 @@ def verdicts(cells: list[Cell]) -> dict[str, object]:
             if len(fs) >= 2:
                 spreads.append((max(fs) - min(fs)) / float(np.mean(fs)))
         out["max_relative_spread_over_backlash"] = max(spreads) if spreads else None
+    if vib:
+        # FFT amplitude of the following error over half the total backlash δ/2
+        ratios = [c.amplitude_m / (c.backlash_m / 2) for c in vib]
+        out["amplitude_over_half_backlash_min"] = min(ratios)
+        out["amplitude_over_half_backlash_max"] = max(ratios)
     return out
 
 
-def _plot(cells: list[Cell], path: Path) -> None:
+def _plot(cells: list[Cell], path: Path, viscous: float, axis_name: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     kvs = sorted({c.kv for c in cells})
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    deltas = sorted({c.backlash_m for c in cells})
+    fig, ax = plt.subplots(figsize=(8, 5.2))
     k = np.linspace(min(kvs) * 0.9, max(kvs) * 1.1, 50)
     ax.fill_between(k, k / 4, k, color="0.9", label="eq. 13 band $k_v/4..k_v$")
-    for delta in sorted({c.backlash_m for c in cells}):
-        pts = [(c.kv, c.frequency_hz) for c in cells if c.backlash_m == delta and c.frequency_hz]
-        if pts:
-            x, y = zip(*pts, strict=True)
-            ax.plot(x, y, "o-", label=f"δ = {delta * 1e3:g} mm")
+    # each δ's cells side by side around its k_v so that equal frequencies stay visible
+    step = 0.012 * (max(kvs) - min(kvs) or 1.0)
+    for i, delta in enumerate(deltas):
+        color = f"C{i}"
+        shift = (i - (len(deltas) - 1) / 2) * step
+        pts = [(c.kv + shift, c.frequency_hz) for c in cells if c.backlash_m == delta]
+        vib = [(x, y) for x, y in pts if y is not None]
+        if vib:
+            x, y = zip(*vib, strict=True)
+            ax.plot(x, y, "o-", color=color, ms=5, label=f"δ = {delta * 1e3:g} mm")
+        else:
+            ax.plot([], [], "o-", color=color, ms=5, label=f"δ = {delta * 1e3:g} mm (no cell)")
+        quiet_cells = [x for x, y in pts if y is None]
+        ax.plot(quiet_cells, [min(kvs) / 8] * len(quiet_cells), "x", color=color, ms=7, mew=1.5)
+    ax.plot([], [], "x", color="k", ms=7, mew=1.5, label="no limit cycle (amplitude < 5 % of δ)")
+    ax.axhline(min(kvs) / 8 * 1.6, color="0.6", lw=0.6, ls=":")
+    ax.set_ylim(0, max(kvs) * 1.12)
     ax.set_xlabel("$k_v$ [1/s]")
     ax.set_ylabel("limit-cycle frequency [Hz]")
-    ax.legend(fontsize=8)
+    n_vib = sum(c.frequency_hz is not None for c in cells)
+    ax.set_title(
+        f"Limit-cycle frequency over $k_v$ and backlash δ (section X, ordinary control): "
+        f"{n_vib} of {len(cells)} cells vibrate\n"
+        f"{Path(axis_name).name} with friction.viscous = {viscous:g} N m s/m, not the paper's "
+        "57.3\n(with 57.3 no cell vibrates: docs/paper_reproduction.md)",
+        fontsize=9,
+    )
+    ax.legend(fontsize=8, loc="upper left")
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -129,9 +155,14 @@ def _plot(cells: list[Cell], path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    progress = Progress(f"plant_sim {NAME}", quiet=args.quiet)
     axis = read_axis(args.axis).with_values({"friction.viscous": args.viscous})
     backlash = tuple(d * 1e-3 for d in args.backlash_mm)
-    cells = sweep(axis, args.kv, backlash)
+    print(
+        f"note: friction.viscous = {args.viscous:g} N m s/m for every cell (the axis file "
+        f"{args.axis} says {read_axis(args.axis).friction.viscous:g}; --viscous to change)"
+    )
+    cells = sweep(axis, args.kv, backlash, progress)
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "sweep.csv", "w", newline="") as fh:
         w = csv.writer(fh)
@@ -156,7 +187,8 @@ def run(args: argparse.Namespace) -> int:
     (args.out / "sweep.json").write_text(
         json.dumps({"verdicts": v, "cells": [c.__dict__ for c in cells]}, indent=2)
     )
-    _plot(cells, args.out / "sweep.png")
+    _plot(cells, args.out / "sweep.png", args.viscous, str(args.axis))
     print(table)
     print(json.dumps(v, indent=2))
+    print(f"wrote {args.out}/: sweep.csv, sweep.json, sweep.md, sweep.png")
     return 0

@@ -1,6 +1,6 @@
 """Confusion matrix and fit improvements of the diagnosis on the concealed test set.
 
-``python -m plant_sim.diagnose.matrix [--seed 2] [--duration 25] [--cases NAME ...]`` runs
+``python -m plant_sim matrix [--seed 2] [--duration 25] [--cases NAME ...]`` runs
 :func:`run_matrix` on :func:`plant_sim.diagnose.synthetic.test_set` and prints the markdown
 tables (confusion matrix, per-case results with concealment and fit before/after, timings).
 The full set takes several minutes (one diagnosis per case); the test suite runs a few cases.
@@ -8,16 +8,14 @@ The full set takes several minutes (one diagnosis per case); the test suite runs
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 from .effects import Effect, effects_in
 from .engine import DiagnosisOptions, diagnose
-from .synthetic import Case, concealment, generate, test_set
+from .synthetic import Case, concealment, generate
 
 DEFAULT_OPTIONS = DiagnosisOptions()
 
@@ -178,43 +176,10 @@ def cases_markdown(results: Sequence[CaseResult]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m plant_sim.diagnose.matrix",
-        description="Run the diagnosis on the concealed test set and print markdown tables.",
-    )
-    parser.add_argument("--seed", type=int, default=2, help="test-set seed (default 2)")
-    parser.add_argument("--duration", type=float, default=25.0, help="seconds per recording")
-    parser.add_argument("--cases", nargs="*", default=None, help="case names to run (default all)")
-    parser.add_argument("--json", default=None, help="also write the results as JSON lines here")
-    args = parser.parse_args(argv)
-    if not 5.0 <= args.duration <= 600.0:
-        print(f"--duration {args.duration}: allowed 5..600 s", file=sys.stderr)
-        return 2
-    cases = test_set(seed=args.seed, duration_s=args.duration)
-    if args.cases:
-        known = {c.name for c in cases}
-        unknown = [n for n in args.cases if n not in known]
-        if unknown:
-            print(f"unknown case(s) {unknown}; known: {sorted(known)}", file=sys.stderr)
-            return 2
-        cases = [c for c in cases if c.name in args.cases]
-    sink = open(args.json, "w", encoding="utf-8") if args.json else None  # noqa: SIM115
+    """The former entry point; the command is ``python -m plant_sim matrix``."""
+    from plant_sim.__main__ import main as plant_sim_main
 
-    def on_result(r: CaseResult) -> None:
-        print(f"{r.name}: {r.left_out} ({r.seconds:.0f} s)", file=sys.stderr, flush=True)
-        if sink is not None:
-            sink.write(json.dumps(asdict(r)) + "\n")
-            sink.flush()
-
-    try:
-        results = run_matrix(cases, on_result=on_result)
-    finally:
-        if sink is not None:
-            sink.close()
-    print(confusion_markdown(results))
-    print()
-    print(cases_markdown(results))
-    return 0
+    return plant_sim_main(["matrix", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

@@ -6,7 +6,6 @@ Kept apart from the command line so that tests and the benchmark call the same f
 from __future__ import annotations
 
 import json
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -113,8 +112,3 @@ def confusion_markdown(matrix: dict[str, dict[str, int]]) -> str:
     rows = [f"| {t} | " + " | ".join(str(matrix[t][p]) for p in CLASSES) + " |" for t in CLASSES]
     return "\n".join([head, rule, *rows])
 
-
-def stage(message: str, quiet: bool) -> None:
-    """One progress line on stderr (the monitor's stages)."""
-    if not quiet:
-        print(f"monitor: {message}", file=sys.stderr, flush=True)

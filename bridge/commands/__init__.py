@@ -1,0 +1,1 @@
+"""One module per ``python -m bridge`` command (see bridge/__main__.py, virtual_bus/cli.py)."""

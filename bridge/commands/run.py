@@ -1,0 +1,136 @@
+"""``python -m bridge run``: the bridge against a drive on a CAN interface (real time)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from virtual_bus import BusConfig, cli
+
+from .. import od as objdict
+from ..errors import BridgeError
+from ..interpolator import Move, load_move_file, parse_move
+from ..node import BridgeConfig
+from ..profile import load_profile
+from ..timing import TimeMode
+from .common import default_store_path, regulated_axis
+
+NAME = "run"
+HELP = "run the bridge against a drive on a CAN interface (real time)"
+DESCRIPTION = (
+    "Configure the drive over SDO, bring it to Operation Enabled, then close the loop every "
+    "SYNC until the moves are done, --seconds pass, a fault stops the axis or Ctrl-C. Exit 0: "
+    "done; 1: stopped by a fault or a failure; 2: bad arguments."
+)
+
+
+def _move(text: str) -> Move:
+    try:
+        return parse_move(text)
+    except BridgeError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = DESCRIPTION
+    parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
+    parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
+    parser.add_argument(
+        "--bitrate",
+        type=int,
+        default=1_000_000,
+        help="bit/s, a CiA 301 rate (default 1000000: one axis at 1 ms is 44 %% of it)",
+    )
+    parser.add_argument(
+        "--drive-profile",
+        type=Path,
+        help="drive profile (config/drives/*.toml, `probe --out`); default: adapt to the drive",
+    )
+    parser.add_argument(
+        "--node-id",
+        type=cli.node_id,
+        default=objdict.DEFAULT_NODE_ID,
+        help="the bridge's node-ID (default 1)",
+    )
+    parser.add_argument(
+        "--drive-id",
+        type=cli.node_id,
+        default=objdict.DEFAULT_DRIVE_ID,
+        help="the drive's node-ID (default 2)",
+    )
+    parser.add_argument("--axis", type=Path, required=True, help="axis file (axis-file.md)")
+    parser.add_argument(
+        "--move",
+        type=_move,
+        action="append",
+        default=[],
+        metavar="target=X,feed=V[,accel=A][,dwell=S]",
+        help="a move in load units, /s, /s^2, s (repeatable)",
+    )
+    parser.add_argument("--move-file", type=Path, help="TOML file of [[move]] tables")
+    parser.add_argument("--seconds", type=cli.positive_float, help="stop after this long")
+    parser.add_argument(
+        "--hold",
+        type=cli.positive_float,
+        default=1.0,
+        help="seconds to hold after the last move (default 1)",
+    )
+    parser.add_argument("--no-regulator", action="store_true", help="ordinary control (Fig. 1)")
+    parser.add_argument(
+        "--beta-t", type=cli.positive_float, help="vibration threshold beta_T, rad/s"
+    )
+    parser.add_argument(
+        "--store",
+        type=Path,
+        metavar="FILE",
+        help="parameter store of 1010h/1011h, loaded at start (default: beside the axis "
+        "file, AXIS.bridge-store.json)",
+    )
+    parser.add_argument("--trace", type=Path, help="trace file to write (trace-file.md)")
+    parser.add_argument("--bus-log", type=Path, help="candump log of the bus traffic")
+    parser.add_argument(
+        "--clock",
+        choices=[m.value for m in TimeMode],
+        default="realtime",
+        help="realtime (default; hardware) or lockstep (simulated drives)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..run import RunOptions, run_bridge
+
+    moves = list(args.move)
+    if args.move_file is not None:
+        moves += load_move_file(args.move_file)
+    options = RunOptions(
+        bus=BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate),
+        axis=regulated_axis(args.axis),
+        bridge=BridgeConfig(
+            node_id=args.node_id,
+            drive_id=args.drive_id,
+            store_path=args.store or default_store_path(args.axis),
+            profile=None if args.drive_profile is None else load_profile(args.drive_profile),
+        ),
+        moves=tuple(moves),
+        seconds=args.seconds,
+        hold_s=args.hold,
+        regulator_enabled=not args.no_regulator,
+        beta_t_rad_s=args.beta_t,
+        trace_path=args.trace,
+        bus_log_path=args.bus_log,
+        time_mode=TimeMode(args.clock),
+    )
+    if not moves and args.seconds is None:
+        raise cli.UsageError("give --move, --move-file or --seconds (otherwise it never ends)")
+    store = options.bridge.store_path
+    if store is not None and (store.is_dir() or not store.parent.is_dir()):
+        raise cli.UsageError(f"--store {store}: not a file in an existing directory")
+    result = run_bridge(options)
+    print(
+        f"{result.cycles} cycles; state {result.state.name}; missed TPDOs "
+        f"{result.missed_tpdos}, late {result.late_tpdos}, skipped SYNCs {result.skipped_syncs}"
+    )
+    if result.stop_message != "none":
+        print(f"stopped: {result.stop_message}")
+        return 1
+    return 0

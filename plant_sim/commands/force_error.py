@@ -1,0 +1,45 @@
+"""``python -m plant_sim force_error --axis AXIS.toml TRACE.csv ...``: relative force error.
+
+100·||F_meas − F_sim||/||F_meas|| (percent) of an axis file simulated in the loop of each
+recording (:mod:`plant_sim.force_error`, docs/emps.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from virtual_bus.progress import Progress
+
+from ..axis import load_axis
+from ..force_error import relative_force_error
+from ..trace import check_time_base, read_trace
+from .common import plain_warnings
+
+NAME = "force_error"
+HELP = "relative force error (percent) of an axis file simulated in the loop of recordings"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("traces", nargs="+", type=Path, metavar="TRACE.csv", help="trace files")
+    parser.add_argument("--axis", type=Path, required=True, metavar="AXIS.toml", help="axis file")
+
+
+def run(args: argparse.Namespace) -> int:
+    axis = load_axis(args.axis)
+    with plain_warnings():
+        traces = [(path, read_trace(path)) for path in args.traces]
+        for path, trace in traces:
+            check_time_base(trace, axis.control.position_cycle, str(path))
+    progress = Progress(f"plant_sim {NAME}", quiet=args.quiet)
+    results = []
+    with progress.bar(len(traces), "simulate in the loop of each recording", "trace") as bar:
+        for path, trace in traces:
+            results.append((path, relative_force_error(axis, trace)))
+            bar.update()
+    for path, result in results:
+        print(
+            f"{path}: {result.percent:.3f} % ({result.rows} rows, error {result.error_rms:.4g} "
+            f"rms of {result.measured_rms:.4g} rms)"
+        )
+    return 0

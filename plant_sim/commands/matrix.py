@@ -1,0 +1,68 @@
+"""``python -m plant_sim matrix [--seed 2] [--duration 25] [--cases NAME ...]``.
+
+Runs the diagnosis on the concealed test set (:func:`plant_sim.diagnose.synthetic.test_set`)
+and prints the markdown tables of :mod:`plant_sim.diagnose.matrix` (confusion matrix,
+per-case results, timings). The full set takes several minutes (one diagnosis per case).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import asdict
+
+from virtual_bus import cli
+from virtual_bus.progress import Progress
+
+from ..diagnose.matrix import CaseResult, cases_markdown, confusion_markdown, run_matrix
+from ..diagnose.synthetic import test_set
+
+NAME = "matrix"
+HELP = "confusion matrix of the diagnosis on the concealed test set (several minutes)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--seed", type=int, default=2, help="test-set seed (default 2)")
+    parser.add_argument(
+        "--duration",
+        type=cli.bounded_float(5.0, 600.0),
+        default=25.0,
+        metavar="S",
+        help="seconds per recording, 5..600 (default 25)",
+    )
+    parser.add_argument(
+        "--cases", nargs="+", default=None, metavar="NAME", help="case names (default all)"
+    )
+    parser.add_argument("--json", type=cli.new_file, help="also write the results (JSON lines)")
+    cli.add_quiet(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    cases = test_set(seed=args.seed, duration_s=args.duration)
+    if args.cases:
+        known = {c.name for c in cases}
+        unknown = [n for n in args.cases if n not in known]
+        if unknown:
+            raise cli.UsageError(f"--cases: unknown {unknown}; known: {sorted(known)}")
+        cases = [c for c in cases if c.name in args.cases]
+    progress = Progress(f"plant_sim {NAME}", quiet=args.quiet)
+    sink = open(args.json, "w", encoding="utf-8") if args.json else None  # noqa: SIM115
+
+    with progress.bar(len(cases), "diagnoses", unit="case") as bar:
+
+        def on_result(r: CaseResult) -> None:
+            bar.update()
+            bar.set_description(f"{r.name}: {r.left_out or 'nothing'} ({r.seconds:.0f} s)")
+            if sink is not None:
+                sink.write(json.dumps(asdict(r)) + "\n")
+                sink.flush()
+
+        try:
+            results = run_matrix(cases, on_result=on_result)
+        finally:
+            if sink is not None:
+                sink.close()
+    print(confusion_markdown(results))
+    print()
+    print(cases_markdown(results))
+    return 0

@@ -1,0 +1,297 @@
+"""The one command-line framework of ``python -m plant_sim``, ``bridge`` and ``virtual_bus``.
+
+A command is a module with ``NAME``, ``HELP``, ``add_arguments(parser)`` and
+``run(args) -> int`` (the convention of ``plant_sim/commands/*.py``). :func:`main` builds the
+parser from a package's command modules and runs the chosen one. What every command gets:
+
+* one way to fail on bad input: a single line ``PROG COMMAND: error: MESSAGE`` on stderr and
+  exit status 2, whether argparse rejects an argument (:class:`Parser`), a command raises
+  :class:`UsageError`, or a package's input error (bad file, bad value) reaches :func:`main`;
+* one set of argument types: :func:`positive_float`, :func:`count`, :func:`node_id`,
+  :func:`number_list` (``--kv 20,30`` and ``--kv 20 30`` alike), :func:`existing_file`,
+  :func:`output_dir`, :func:`new_file`;
+* ``--quiet`` on every command (:func:`add_quiet`; added when a command does not add it) for
+  the progress of :mod:`virtual_bus.progress`.
+
+It lives in :mod:`virtual_bus`, the lowest package (it imports nothing else of the project),
+so ``plant_sim`` and ``bridge`` import it without a cycle. Standard library only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import NoReturn, Protocol
+
+#: Exit status of bad arguments or bad input files (one line on stderr).
+EXIT_USAGE = 2
+#: Exit status of a failure while running (device, bus, environment).
+EXIT_FAILURE = 1
+
+
+class UsageError(Exception):
+    """An argument that passed argparse but is invalid (alone or with another one): exit 2."""
+
+
+class Command(Protocol):
+    """What a command module provides (checked structurally)."""
+
+    NAME: str
+    HELP: str
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None: ...
+
+    def run(self, args: argparse.Namespace) -> int: ...
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (no usage dump) and exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {one_line(message)} (see --help)\n")
+
+
+def one_line(message: object) -> str:
+    """``message`` on one line (line breaks of a nested message become "; ")."""
+    return "; ".join(part.strip() for part in str(message).splitlines() if part.strip())
+
+
+def print_error(where: str, message: object, code: int = EXIT_USAGE) -> int:
+    """Print ``WHERE: error: MESSAGE`` as one line on stderr; returns ``code``."""
+    print(f"{where}: error: {one_line(message)}", file=sys.stderr)
+    return code
+
+
+@dataclass(frozen=True)
+class Failure:
+    """Exceptions of these types end a command with one line and ``code`` (1 or 2);
+    ``label`` (optional) is put before the message, e.g. "CAN bus error"."""
+
+    types: tuple[type[BaseException], ...]
+    code: int = EXIT_USAGE
+    label: str = ""
+
+
+#: Input errors every package shares: a file that is missing or unreadable is bad input.
+FILE_ERRORS = Failure((FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError))
+
+
+def load_commands(package: str, names: Sequence[str]) -> list[ModuleType]:
+    """Import ``package.commands.NAME`` for each name (a module that is not installed is
+    simply not offered)."""
+    modules = []
+    for name in names:
+        target = f"{package}.commands.{name}"
+        try:
+            modules.append(importlib.import_module(target))
+        except ModuleNotFoundError as exc:
+            if exc.name != target:
+                raise
+    return modules
+
+
+def build_parser(prog: str, description: str, commands: Sequence[ModuleType]) -> Parser:
+    parser = Parser(prog=prog, description=description)
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=Parser
+    )
+    for module in commands:
+        p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        if not any(a.dest == "quiet" for a in p._actions):
+            add_quiet(p)
+        p.set_defaults(_command=module)
+    return parser
+
+
+def main(
+    prog: str,
+    description: str,
+    commands: Sequence[ModuleType],
+    argv: Sequence[str] | None,
+    failures: Sequence[Failure] = (),
+    defaults: Mapping[str, object] | None = None,
+) -> int:
+    """Parse ``argv``, run the chosen command, map errors to one line and an exit status.
+
+    ``failures`` are tried in order after :class:`UsageError` (always exit 2) and before
+    :data:`FILE_ERRORS`; ``defaults`` are set on the namespace of every command (injected
+    collaborators of tests, e.g. a fake ``ip`` runner)."""
+    parser = build_parser(prog, description, commands)
+    if defaults:
+        parser.set_defaults(**defaults)
+    args = parser.parse_args(argv)
+    where = f"{prog} {args.command}"
+    try:
+        return int(args._command.run(args))
+    except UsageError as exc:
+        return print_error(where, exc, EXIT_USAGE)
+    except Exception as exc:
+        for failure in (*failures, FILE_ERRORS):
+            if isinstance(exc, failure.types):
+                label = f"{failure.label}: " if failure.label else ""
+                return print_error(where, f"{label}{exc}", failure.code)
+        raise
+
+
+# --- argument types -----------------------------------------------------------------------------
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number > 0")
+    return value
+
+
+def bounded_float(low: float, high: float) -> Callable[[str], float]:
+    """A number in [low, high]."""
+
+    def parse(text: str) -> float:
+        value = _number(text)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{text!r}: allowed {low:g}..{high:g}")
+        return value
+
+    return parse
+
+
+def bounded_int(low: int, high: int) -> Callable[[str], int]:
+    """A whole number in [low, high]."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{text!r}: allowed {low}..{high}")
+        return value
+
+    return parse
+
+
+def count(text: str) -> int:
+    """A whole number >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be >= 1")
+    return value
+
+
+#: CiA 301: node-IDs 1..127.
+NODE_ID_RANGE = (1, 127)
+
+
+def node_id(text: str) -> int:
+    """A CANopen node-ID, 1..127 (decimal or 0x hex)."""
+    try:
+        value = int(text, 0)
+    except ValueError:
+        value = -1
+    if not NODE_ID_RANGE[0] <= value <= NODE_ID_RANGE[1]:
+        raise argparse.ArgumentTypeError(f"{text!r}: a CANopen node-ID is 1..127")
+    return value
+
+
+def positive_list(text: str) -> tuple[float, ...]:
+    """Comma-separated numbers, each > 0 (one word of a :func:`number_list` option)."""
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected comma-separated numbers, e.g. 20,30 or 20 30"
+        ) from None
+    if not values or any(not (math.isfinite(v) and v > 0) for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: every value must be a finite number > 0")
+    return values
+
+
+class _FlatList(argparse.Action):
+    """Joins the words of ``--opt 20,30 40`` into one tuple (20, 30, 40)."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option_string: str | None = None,
+    ) -> None:
+        words = values if isinstance(values, list) else [values]
+        setattr(namespace, self.dest, tuple(v for word in words for v in word))
+
+
+def number_list(
+    parser: argparse.ArgumentParser, flag: str, default: Sequence[float], help_text: str
+) -> None:
+    """Add ``flag`` taking positive numbers separated by commas or spaces, or both."""
+    parser.add_argument(
+        flag,
+        nargs="+",
+        type=positive_list,
+        action=_FlatList,
+        default=tuple(default),
+        metavar="X",
+        help=f"{help_text}; comma- or space-separated (default "
+        + ",".join(f"{v:g}" for v in default)
+        + ")",
+    )
+
+
+def existing_file(text: str) -> Path:
+    """A path to an existing file."""
+    path = Path(text)
+    if not path.exists():
+        raise argparse.ArgumentTypeError(f"{text}: no such file")
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"{text}: not a file")
+    return path
+
+
+def output_dir(text: str) -> Path:
+    """A directory to write into: it may not exist yet (created by the command), but it must
+    not be an existing file."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(
+            f"{text}: exists and is not a directory (--out takes a directory)"
+        )
+    return path
+
+
+def new_file(text: str) -> Path:
+    """A file to write: not a directory, and its directory exists."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: is a directory, expected a file path")
+    if not path.parent.exists():
+        raise argparse.ArgumentTypeError(f"{text}: directory {path.parent} does not exist")
+    return path
+
+
+def add_quiet(parser: argparse.ArgumentParser) -> None:
+    """``--quiet``/``-q``: no progress output (results and errors are still printed)."""
+    parser.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress output (results still printed)"
+    )
