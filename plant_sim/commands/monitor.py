@@ -19,6 +19,7 @@ import json
 import sys
 from pathlib import Path
 
+from virtual_bus import cli
 from virtual_bus.progress import Progress
 
 from ..errors import FleetMapError, PlantSimError, SchedulerError
@@ -26,20 +27,9 @@ from ..monitor.demo_fleet import FleetSpec, generate
 from ..monitor.fleet import Limits
 from ..monitor.job import confusion, confusion_markdown, monitor
 from ..monitor.sources import discover, load_axis_map
-from .common import positive_float
 
 NAME = "monitor"
 HELP = "condition monitoring of a fleet: vibration episodes, eq. 13 verdicts, backlash trends"
-
-
-def _workers(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if not 0 <= value <= 256:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be 0 (in this process) .. 256")
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -64,20 +54,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--workers",
-        type=_workers,
+        type=cli.bounded_int(0, 256),
         default=2,
         help="local worker processes (default 2; 0 = in this process)",
     )
     parser.add_argument(
         "--growth-limit",
-        type=positive_float,
+        type=cli.positive_float,
         default=5.0,
         metavar="UM_PER_MONTH",
         help="warn when backlash grows faster, µm (or µrad) per month (default 5)",
     )
     parser.add_argument(
         "--backlash-limit",
-        type=positive_float,
+        type=cli.positive_float,
         default=50.0,
         metavar="UM",
         help="flag a backlash above this, µm (or µrad) (default 50)",
