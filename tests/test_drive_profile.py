@@ -13,7 +13,7 @@ import canopen
 import pytest
 from adapt_helpers import ENCODER_EDS, TECHNOSOFT_EDS, mirror_mode, require_eds
 
-from bridge.__main__ import build_parser, main
+from bridge.__main__ import COMMANDS, DESCRIPTION, PROG, main
 from bridge.cycle import BridgeState, StopReason
 from bridge.errors import BridgeConfigError
 from bridge.interpolator import Move
@@ -25,7 +25,7 @@ from bridge.run import check_bus_load
 from bridge.sim import simulated_axis
 from plant_sim.axis import load_axis
 from regulator import RegulatorConfig
-from virtual_bus import Interface
+from virtual_bus import Interface, cli
 
 ROOT = Path(__file__).resolve().parent.parent
 DRIVES = ROOT / "config" / "drives"
@@ -79,7 +79,7 @@ def test_run_with_a_bad_profile_exits_2_before_opening_the_bus(
 
 
 def test_default_bitrate_is_1_mbit_and_an_overfull_bus_is_refused() -> None:
-    parser = build_parser()
+    parser = cli.build_parser(PROG, DESCRIPTION, cli.load_commands("bridge", COMMANDS))
     args = parser.parse_args(["run", "--interface", "i", "--channel", "c", "--axis", "a"])
     assert args.bitrate == 1_000_000
     assert parser.parse_args(["busload"]).bitrate == 1_000_000
