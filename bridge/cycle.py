@@ -66,6 +66,8 @@ class StopReason(Enum):
     DRIVE_DISABLED = 7  # the drive left Operation Enabled without a fault
     DRIVE_NMT = 8  # the drive's heartbeat reports boot-up or a non-operational NMT state
     ENABLE_TIMEOUT = 9  # the drive did not reach Operation Enabled within ENABLE_TIMEOUT_S
+    CYCLE_OVERRUN = 10  # the loop overran its cycle (SYNC slots skipped) too often in a row
+    INTERNAL_ERROR = 11  # the controller's own step failed (a bug; the message names it)
 
 
 class Command(IntEnum):
@@ -265,6 +267,12 @@ class CycleController:
                 value=int(command),
                 abort_code=SdoAbort.DEVICE_STATE,
             )
+
+    def stop(self, reason: StopReason, message: str) -> None:
+        """Stop the axis from outside the controller (the loop: overruns, its own errors);
+        only while the axis is enabled -- a stop already in force keeps its reason."""
+        if self.axis_enabled:
+            self._stop(reason, message)
 
     def queue_move(self, item: Move | Table) -> None:
         """Queue motion: started now when running, else when the axis becomes running."""

@@ -144,5 +144,5 @@ def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResul
         stop_message=c.stop_message,
         missed_tpdos=bridge.counters.missed,
         late_tpdos=bridge.counters.late,
-        skipped_syncs=timing.skipped_syncs if timing else 0,
+        skipped_syncs=timing.skipped_syncs,
     )

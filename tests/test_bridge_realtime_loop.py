@@ -1,0 +1,268 @@
+"""The real-time loop against a scripted drive on an injected clock (no sleeps, no threads).
+
+The fake bus answers each SYNC at once with the two TPDOs of a drive in Operation Enabled and
+moves a fake wall clock: a receive that times out advances it by the timeout, a stall
+scripted for a cycle parks the "process" for that long after its RPDO (or while it waits for
+the next slot). Checked against the schedule itself (SYNC instants on the grid t0 + k*cycle),
+not against the loop's own bookkeeping only.
+"""
+
+from __future__ import annotations
+
+import gc
+import itertools
+import math
+
+import can
+import pytest
+
+from bridge.cycle import BridgeState, StopReason
+from bridge.layout import RPDO1_STRUCT, SYNC_COB_ID, TPDO1_STRUCT, TPDO2_STRUCT
+from bridge.node import Bridge, BridgeConfig
+from bridge.params import BridgeParams
+from bridge.realtime import GcBetweenCycles, RealTimeOptions, RealTimeRefused, apply_realtime
+from bridge.timing import RealTimePacer
+from plant_sim.axis import load_axis
+
+AXIS = load_axis("config/paper_axis.toml")
+CYCLE_S = AXIS.control.position_cycle
+DRIVE_ID = 2
+OPERATION_ENABLED = 0x0027
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+class ScriptedBus:
+    """Duck-typed python-can bus on a fake clock (see the module docstring)."""
+
+    channel_info = "scripted"
+
+    def __init__(self, clock: Clock) -> None:
+        self.clock = clock
+        self.queue: list[can.Message] = []
+        self.sync_times: list[float] = []
+        self.rpdos: list[tuple[int, int]] = []
+        self.stall_after_rpdo: dict[int, float] = {}  # cycle (RPDO count) -> stall, s
+        self.stall_in_wait: dict[int, float] = {}  # SYNCs sent -> stall in the next idle wait
+        self.fail_send: set[int] = set()  # RPDO numbers whose send raises
+        self.answer_s = 50e-6  # the drive's answer after SYNC
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == SYNC_COB_ID:
+            self.sync_times.append(self.clock.t)
+            self.clock.t += self.answer_s
+            self.queue.append(self._frame(0x180 + DRIVE_ID, TPDO1_STRUCT.pack(0, 0)))
+            self.queue.append(
+                self._frame(0x280 + DRIVE_ID, TPDO2_STRUCT.pack(OPERATION_ENABLED, 0, 0))
+            )
+        elif msg.arbitration_id == 0x200 + DRIVE_ID:
+            n = len(self.rpdos)
+            if n in self.fail_send:
+                self.fail_send.discard(n)
+                self.rpdos.append((-1, -1))
+                raise can.CanOperationError("transmit buffer full")
+            self.rpdos.append(RPDO1_STRUCT.unpack(msg.data))
+            self.clock.t += 20e-6 + self.stall_after_rpdo.get(n, 0.0)
+
+    @staticmethod
+    def _frame(can_id: int, data: bytes) -> can.Message:
+        return can.Message(arbitration_id=can_id, data=data, is_extended_id=False)
+
+    def recv(self, timeout: float | None) -> can.Message | None:
+        if self.queue:
+            return self.queue.pop(0)
+        self.clock.t += self.stall_in_wait.pop(len(self.sync_times), 0.0)
+        self.clock.t += max(timeout or 0.0, 1e-6)
+        return None
+
+
+def make_bridge(
+    clock: Clock, bus: ScriptedBus, overrun_limit: int | None = 3, **pacer: float
+) -> Bridge:
+    bridge = Bridge(
+        bus,  # type: ignore[arg-type]
+        BridgeParams.for_axis(AXIS),
+        AXIS.kind,
+        RealTimePacer(CYCLE_S, wall=clock, **pacer),
+        config=BridgeConfig(drive_id=DRIVE_ID),
+        keep_timing=True,
+        wall=clock,
+        overrun_limit=overrun_limit,
+    )
+    bridge.start(configure_drive=False)
+    return bridge
+
+
+def slots_of(bus: ScriptedBus, late_s: float) -> list[int]:
+    """Slot number of every SYNC sent; each must lie on the grid within ``late_s``."""
+    t0 = bus.sync_times[0]
+    slots = []
+    for t in bus.sync_times:
+        k = math.floor((t - t0) / CYCLE_S + 1e-9)
+        assert 0.0 <= t - (t0 + k * CYCLE_S) <= late_s + 1e-12, (t, k)
+        slots.append(k)
+    return slots
+
+
+def test_a_late_loop_skips_slots_and_never_bunches_syncs() -> None:
+    clock = Clock()
+    bus = ScriptedBus(clock)
+    bus.stall_after_rpdo[5] = 2.5 * CYCLE_S  # parked 2.5 cycles after cycle 5
+    bridge = make_bridge(clock, bus)
+    bridge.run(cycles=20)
+    slots = slots_of(bus, bridge.pacer.late_s)  # type: ignore[attr-defined]
+    assert slots[:6] == [0, 1, 2, 3, 4, 5]
+    assert slots[6] == 8  # slots 6 and 7 skipped, 8 on time: no catch-up burst
+    assert all(b - a >= 1 for a, b in itertools.pairwise(slots))
+    assert all(
+        b - a >= CYCLE_S * (1 - 0.2)
+        for a, b in zip(bus.sync_times, bus.sync_times[1:], strict=False)
+    )
+    timing = bridge.timing
+    assert timing.skipped_syncs == 2 and timing.overruns == 1
+    assert bridge.controller.state is BridgeState.RUNNING  # one overrun: counted only
+
+
+def test_preempted_while_waiting_the_slot_is_skipped_not_sent_late() -> None:
+    clock = Clock()
+    bus = ScriptedBus(clock)
+    bus.stall_in_wait[4] = 0.9 * CYCLE_S  # after SYNC 3, parked during the wait for slot 4
+    bridge = make_bridge(clock, bus)
+    bridge.run(cycles=10)
+    slots = slots_of(bus, bridge.pacer.late_s)  # type: ignore[attr-defined]
+    assert 4 not in slots and slots[4] == 5
+    assert bridge.timing.skipped_syncs == 1
+    assert max(bridge.timing.sync_late_s) <= bridge.pacer.late_s  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize(("pattern", "stops"), [("every", True), ("every_other", False)])
+def test_overruns_in_a_row_stop_the_axis(pattern: str, stops: bool) -> None:
+    clock = Clock()
+    bus = ScriptedBus(clock)
+    step = 1 if pattern == "every" else 2
+    for n in range(10, 40, step):
+        bus.stall_after_rpdo[n] = 1.5 * CYCLE_S
+    bridge = make_bridge(clock, bus, overrun_limit=3)
+    bridge.run(cycles=30)
+    c = bridge.controller
+    if stops:
+        assert c.state is BridgeState.STOPPED and c.stop_reason is StopReason.CYCLE_OVERRUN
+        assert "3 cycles in a row" in c.stop_message
+        assert bus.rpdos[-1] == (0x0002, 0)  # quick stop, no set point
+        assert bridge.timing.max_consecutive_overruns >= 3
+    else:
+        assert c.state is BridgeState.RUNNING
+        assert bridge.timing.overruns > 5 and bridge.timing.max_consecutive_overruns == 1
+
+
+def test_counting_only_never_stops() -> None:
+    clock = Clock()
+    bus = ScriptedBus(clock)
+    for n in range(5, 30):
+        bus.stall_after_rpdo[n] = 1.5 * CYCLE_S
+    bridge = make_bridge(clock, bus, overrun_limit=None)
+    bridge.run(cycles=25)
+    assert bridge.controller.state is BridgeState.RUNNING
+    assert bridge.timing.max_consecutive_overruns >= 19
+
+
+def test_errors_on_the_cycle_path_are_counted_not_raised(caplog: pytest.LogCaptureFixture) -> None:
+    clock = Clock()
+    bus = ScriptedBus(clock)
+    bus.fail_send.add(3)
+    bridge = make_bridge(clock, bus)
+
+    def broken_notify(can_id: int, data: bytearray, timestamp: float) -> None:
+        raise ValueError("malformed request")
+
+    bridge.network.notify = broken_notify  # type: ignore[method-assign]
+    bus.queue.append(can.Message(arbitration_id=0x601, data=bytes(8), is_extended_id=False))
+    bridge.run(cycles=10)
+    assert bridge.timing.errors == 2  # the failed RPDO send and the failed frame
+    assert bridge.controller.state is BridgeState.RUNNING
+    assert len(bus.sync_times) == 10
+    assert "transmit buffer full" in caplog.text and "malformed request" in caplog.text
+
+
+def test_a_failing_controller_step_stops_the_axis() -> None:
+    clock = Clock()
+    bus = ScriptedBus(clock)
+    bridge = make_bridge(clock, bus)
+    bridge.run(cycles=3)
+    original = bridge.controller.regulator.step
+
+    def failing(*args: float) -> float:
+        raise ZeroDivisionError("bug")
+
+    bridge.controller.regulator.step = failing  # type: ignore[method-assign]
+    bridge.run(cycles=2)
+    bridge.controller.regulator.step = original  # type: ignore[method-assign]
+    c = bridge.controller
+    assert c.stop_reason is StopReason.INTERNAL_ERROR and "bug" in c.stop_message
+    assert bus.rpdos[-1] == (0x0002, 0)
+
+
+def test_service_frames_wait_for_time_between_cycles() -> None:
+    """300 SDO requests at once, each taking 0.3 ms to handle: every SYNC stays on its slot,
+    the requests are handled over the following cycles, and those the ring cannot hold are
+    counted as dropped."""
+    clock = Clock()
+    bus = ScriptedBus(clock)
+    bridge = make_bridge(clock, bus)
+    handled: list[float] = []
+
+    def slow_notify(can_id: int, data: bytearray, timestamp: float) -> None:
+        clock.t += 0.3 * CYCLE_S
+        handled.append(clock.t)
+
+    bridge.network.notify = slow_notify  # type: ignore[method-assign]
+    bridge.run(cycles=2)
+    for _ in range(300):
+        bus.queue.append(can.Message(arbitration_id=0x601, data=bytes(8), is_extended_id=False))
+    bridge.run(cycles=200)
+    slots = slots_of(bus, bridge.pacer.late_s)  # type: ignore[attr-defined]
+    assert slots == list(range(202))
+    assert bridge.timing.skipped_syncs == 0
+    dropped = bridge.timing.service_dropped
+    assert dropped > 0 and dropped + len(handled) == 300
+    assert handled[-1] - handled[0] > 50 * CYCLE_S  # spread over many cycles
+
+
+def test_real_time_options_are_checked_and_off_by_default() -> None:
+    assert not RealTimeOptions().any
+    with pytest.raises(ValueError, match=r"1\.\.99"):
+        RealTimeOptions(rt_priority=0)
+    with pytest.raises(ValueError, match="CPU number"):
+        RealTimeOptions(cpu=-1)
+    assert apply_realtime(RealTimeOptions()) == []
+
+
+def test_a_cpu_the_process_may_not_use_is_refused_in_one_line() -> None:
+    import os
+
+    cpu = max(os.sched_getaffinity(0)) + 64
+    with pytest.raises(RealTimeRefused) as info:
+        apply_realtime(RealTimeOptions(cpu=cpu))
+    assert info.value.setting == "cpu" and "\n" not in str(info.value)
+    assert str(cpu) in str(info.value)
+
+
+def test_gc_runs_only_when_the_loop_calls_it() -> None:
+    was = gc.isenabled()
+    control = GcBetweenCycles(threshold=10)
+    control.start()
+    try:
+        assert not gc.isenabled() and gc.get_freeze_count() > 0
+        junk = [[i] for i in range(50)]  # allocations the collector would otherwise act on
+        assert control.due()
+        control.collect()
+        assert gc.get_count()[0] < 10 and junk
+    finally:
+        control.stop()
+    assert gc.isenabled() == was and gc.get_freeze_count() == 0
