@@ -1,0 +1,265 @@
+"""The real-time part of ``python -m bridge bench``: the bridge alone, the drive elsewhere.
+
+SYNC from the wall clock at ``rate_hz`` for ``seconds``, the axis moving ±20 mm back and
+forth. Where the simulated drive runs (:class:`DrivePlacement`):
+
+* ``PROCESS`` (default, needs root): the drive is its own process; both share a python-can
+  ``udp_multicast`` bus inside a private network namespace created for the run and removed
+  after it (:mod:`virtual_bus.netns`; never on the host's interfaces). The figures are the
+  bridge's: its loop does not share an interpreter with the drive's physics.
+* ``THREAD``: the drive in the bridge's process on python-can's virtual bus (what ran before;
+  the drive's Python work and threads compete with the loop for the GIL).
+
+Figures (:func:`bridge.loopstats.summary`): SYNC -> set point latency (it includes the drive's
+answer), the bridge's own share (both TPDOs in -> RPDO sent), SYNC lateness against its slot
+and its jitter, histograms, skipped SYNCs, overruns, cycles without all TPDOs, CPU time of the
+loop's thread per cycle, CPU use of bridge and drive processes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import dataclasses
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from enum import Enum
+from pathlib import Path
+
+import can
+
+from plant_sim.axis import AxisConfig, dump_axis
+from regulator import RegulatorConfig
+
+from .cycle import BridgeState
+from .errors import BridgeError
+from .interpolator import Move
+from .loopstats import summary
+from .node import Bridge, BridgeConfig
+from .params import BridgeParams
+from .realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
+from .timing import RealTimePacer
+
+#: udp_multicast group inside the private namespace (python-can's default IPv4 group).
+MULTICAST_GROUP = "239.74.163.2"
+#: Wall time the drive process gets to boot (loading its compiled physics), s.
+DRIVE_BOOT_TIMEOUT_S = 120.0
+
+
+class DrivePlacement(Enum):
+    PROCESS = "process"
+    THREAD = "thread"
+
+
+def axis_at_rate(axis: AxisConfig, rate_hz: float | None) -> AxisConfig:
+    """``axis`` with its position cycle at ``rate_hz`` (None: as it is)."""
+    if rate_hz is None:
+        return axis
+    return axis.with_values({"control.position_cycle": 1.0 / rate_hz})
+
+
+def bench_params(axis: AxisConfig) -> BridgeParams:
+    reg = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
+    # counted, not acted on: the bench measures; 200Ah = 255 lets a bad run finish
+    return dataclasses.replace(BridgeParams.for_axis(axis, reg), pdo_loss_tolerance=255)
+
+
+CLONE_NEWNET = 0x40000000
+
+
+@contextlib.contextmanager
+def _private_netns() -> Iterator[str]:
+    """A network namespace of our own (loopback up, multicast routed on it), removed after."""
+    name = f"bridge-bench-{os.getpid()}"
+    subprocess.run(["ip", "netns", "add", name], check=True)
+    try:
+        subprocess.run(["ip", "-n", name, "link", "set", "lo", "up"], check=True)
+        subprocess.run(["ip", "-n", name, "route", "add", "224.0.0.0/4", "dev", "lo"], check=True)
+        yield name
+    finally:
+        subprocess.run(["ip", "netns", "del", name], check=False)
+
+
+@contextlib.contextmanager
+def _entered(name: str) -> Iterator[None]:
+    """The calling thread (and processes it starts) in namespace ``name`` (setns(2))."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    own = os.open("/proc/thread-self/ns/net", os.O_RDONLY)
+    target = os.open(f"/var/run/netns/{name}", os.O_RDONLY)
+    try:
+        if libc.setns(target, CLONE_NEWNET) != 0:
+            raise OSError(ctypes.get_errno(), f"setns into network namespace {name} failed")
+        try:
+            yield
+        finally:
+            libc.setns(own, CLONE_NEWNET)
+    finally:
+        os.close(target)
+        os.close(own)
+
+
+def _proc_cpu_s(pid: int) -> float:
+    """User + system CPU time of process ``pid`` so far (from /proc), s."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _drive_command(axis_path: Path, rt: RealTimeOptions, drive_cpu: int | None) -> list[str]:
+    cmd = [
+        sys.executable,
+        "-m",
+        "bridge.bench_drive",
+        str(axis_path),
+        "--channel",
+        MULTICAST_GROUP,
+    ]
+    if rt.rt_priority is not None:  # the drive answers SYNC: as urgent as the loop, minus one
+        cmd = ["chrt", "-f", str(max(1, rt.rt_priority - 1)), *cmd]
+    if drive_cpu is not None:
+        cmd = ["taskset", "-c", str(drive_cpu), *cmd]
+    return cmd
+
+
+def _wait_for_boot(bus: can.BusABC, drive_id: int, proc: subprocess.Popen[bytes]) -> None:
+    deadline = time.monotonic() + DRIVE_BOOT_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise BridgeError(f"the drive process ended at start-up (exit {proc.returncode})")
+        msg = bus.recv(0.1)
+        if msg is not None and msg.arbitration_id == 0x700 + drive_id and msg.data[:1] == b"\0":
+            return
+    raise BridgeError(f"the drive process sent no boot-up within {DRIVE_BOOT_TIMEOUT_S:g} s")
+
+
+@contextlib.contextmanager
+def _process_drive(
+    axis: AxisConfig, rt: RealTimeOptions, drive_cpu: int | None, drive_id: int
+) -> Iterator[tuple[can.BusABC, subprocess.Popen[bytes]]]:
+    with tempfile.TemporaryDirectory() as tmp, _private_netns() as name, _entered(name):
+        axis_path = Path(tmp) / "axis.toml"
+        axis_path.write_text(dump_axis(axis), encoding="utf-8")
+        bus = can.Bus(
+            interface="udp_multicast", channel=MULTICAST_GROUP, receive_own_messages=False
+        )
+        proc = subprocess.Popen(_drive_command(axis_path, rt, drive_cpu))
+        try:
+            _wait_for_boot(bus, drive_id, proc)
+            yield bus, proc
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(10.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            bus.shutdown()
+
+
+def _queue_moves(bridge: Bridge, params: BridgeParams, seconds: float) -> None:
+    feed = params.feed
+    move_s = 0.02 / feed + 0.1 + 0.1  # travel, acceleration ramps, dwell
+    for i in range(math.ceil(seconds / move_s) + 2):
+        bridge.controller.queue_move(
+            Move(0.02 if i % 2 == 0 else 0.0, feed, accel=10 * feed, dwell_s=0.1)
+        )
+
+
+def _measure(bridge: Bridge, cycles: int, rt: RealTimeOptions) -> dict[str, float]:
+    applied = apply_realtime(rt)
+    for line in applied:
+        print(f"bench: {line}")
+    wall0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
+    n = bridge.run(until=lambda b: b.cycle_index >= cycles)
+    wall = time.perf_counter() - wall0
+    cpu, thread = time.process_time() - cpu0, time.thread_time() - thread0
+    return {
+        "seconds": wall,
+        "cycles": n,
+        "cpu_us_per_cycle": 1e6 * thread / max(1, n),
+        "cpu_percent_of_one_core": 100.0 * cpu / wall,
+    }
+
+
+def realtime_run(
+    axis: AxisConfig,
+    seconds: float,
+    *,
+    rate_hz: float | None = None,
+    rt: RealTimeOptions = RealTimeOptions(),
+    placement: DrivePlacement = DrivePlacement.PROCESS,
+    drive_cpu: int | None = None,
+) -> dict[str, object]:
+    """One real-time run (module docstring); returns its figures."""
+    axis = axis_at_rate(axis, rate_hz)
+    params = bench_params(axis)
+    cycles = round(seconds / params.cycle_s)
+    config = BridgeConfig()
+    gc_control = GcBetweenCycles() if rt.freeze_gc else None
+    result: dict[str, object] = {
+        "rate_hz": 1.0 / params.cycle_s,
+        "drive": placement.value,
+        "realtime_options": rt.describe(),
+    }
+    with contextlib.ExitStack() as stack:
+        if placement is DrivePlacement.PROCESS:
+            bus, proc = stack.enter_context(_process_drive(axis, rt, drive_cpu, config.drive_id))
+            drive_pid: int | None = proc.pid
+            result["bus"] = "udp_multicast in a private network namespace"
+        else:
+            from .sim import simulated_axis
+            from .timing import TimeMode
+
+            sim = stack.enter_context(
+                simulated_axis(
+                    axis, params, time_mode=TimeMode.REAL_TIME, keep_trace=False, keep_timing=True
+                )
+            )
+            bus, drive_pid = sim.bridge_bus, None
+            result["bus"] = "python-can virtual (drive in this process)"
+        if placement is DrivePlacement.PROCESS:
+            bridge = Bridge(
+                bus,
+                params,
+                axis.kind,
+                RealTimePacer(params.cycle_s),
+                config=config,
+                keep_timing=True,
+                overrun_limit=None,
+                gc_control=gc_control,
+            )
+            stack.callback(bridge.close)
+            bridge.start()
+        else:
+            bridge = sim.bridge
+            bridge.overrun_limit = None
+            bridge.gc_control = gc_control
+        _queue_moves(bridge, params, seconds)
+        drive_cpu0 = _proc_cpu_s(drive_pid) if drive_pid is not None else 0.0
+        result.update(_measure(bridge, cycles, rt))
+        if drive_pid is not None:
+            drive_cpu_s = _proc_cpu_s(drive_pid) - drive_cpu0
+            result["drive_cpu_percent_of_one_core"] = 100.0 * drive_cpu_s / result["seconds"]  # type: ignore[operator]
+        result.update(summary(bridge.timing, params.cycle_s))
+        result["missed_tpdo_cycles"] = bridge.counters.missed_cycles
+        result["late_tpdos"] = bridge.counters.late
+        result["stopped"] = bridge.controller.state is BridgeState.STOPPED
+        if rt.rt_priority is not None:  # back to ordinary scheduling for the tear-down
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return result
+
+
+def can_run_process_drive() -> str | None:
+    """None when the out-of-process drive can run here, else why not (one sentence)."""
+    if os.geteuid() != 0:
+        return "not root: a private network namespace for the drive process needs root"
+    try:
+        import msgpack  # noqa: F401
+    except ImportError:
+        return "python-can's udp_multicast needs msgpack (pip install msgpack)"
+    return None
