@@ -26,7 +26,8 @@ from .eds import render_eds
 from .errors import BridgeError, DriveSetupError
 from .interpolator import Move, load_move_file, parse_move
 from .layout import check_node_id
-from .node import BridgeConfig
+from .node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
+from .realtime import RealTimeOptions, RealTimeRefused
 from .timing import TimeMode
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -82,6 +83,54 @@ def _move(text: str) -> Move:
 
 def _read_axis(path: Path) -> AxisConfig:
     return load_axis(path)
+
+
+def _priority(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 1 <= value <= 99:
+        raise argparse.ArgumentTypeError(f"{text!r}: a SCHED_FIFO priority is 1..99")
+    return value
+
+
+def _cpu(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: a CPU number is >= 0")
+    return value
+
+
+def _add_realtime_options(parser: argparse.ArgumentParser) -> None:
+    """--rt-priority, --cpu, --lock-memory, --freeze-gc (bridge.realtime; all off)."""
+    parser.add_argument(
+        "--rt-priority",
+        type=_priority,
+        metavar="N",
+        help="run the loop under SCHED_FIFO at priority N (1..99; needs root/CAP_SYS_NICE)",
+    )
+    parser.add_argument("--cpu", type=_cpu, metavar="N", help="pin the loop to CPU N")
+    parser.add_argument(
+        "--lock-memory", action="store_true", help="mlockall(MCL_CURRENT|MCL_FUTURE)"
+    )
+    parser.add_argument(
+        "--freeze-gc",
+        action="store_true",
+        help="freeze the garbage collector after start-up; collect only between cycles",
+    )
+
+
+def _realtime_options(args: argparse.Namespace) -> RealTimeOptions:
+    return RealTimeOptions(
+        rt_priority=args.rt_priority,
+        cpu=args.cpu,
+        lock_memory=args.lock_memory,
+        freeze_gc=args.freeze_gc,
+    )
 
 
 # --- the parser ---------------------------------------------------------------------------------
@@ -145,6 +194,14 @@ def build_parser() -> _Parser:
         default="realtime",
         help="realtime (default; hardware) or lockstep (simulated drives)",
     )
+    _add_realtime_options(run)
+    run.add_argument(
+        "--overrun-limit",
+        type=_count,
+        default=DEFAULT_OVERRUN_LIMIT,
+        metavar="N",
+        help=f"stop the axis after N overrunning cycles in a row (default {DEFAULT_OVERRUN_LIMIT})",
+    )
 
     demo = sub.add_parser(
         "demo",
@@ -193,6 +250,26 @@ def build_parser() -> _Parser:
     bench.add_argument("--skip-lockstep", action="store_true", help="real time only")
     bench.add_argument("--axis", type=Path, default=PAPER_AXIS, help="axis file")
     bench.add_argument("--json", type=Path, help="also write the figures to this file")
+    bench.add_argument(
+        "--rate-hz",
+        type=float,
+        choices=[1000.0, 2000.0],
+        help="real time: SYNC rate (default: the axis' position cycle)",
+    )
+    bench.add_argument(
+        "--drive",
+        choices=["auto", "process", "thread"],
+        default="auto",
+        help="real time: the simulated drive in its own process (udp_multicast in a private "
+        "network namespace; needs root), in a thread of the bench, or auto (process if root)",
+    )
+    bench.add_argument(
+        "--drive-cpu",
+        type=_cpu,
+        metavar="N",
+        help="pin the drive process to CPU N (default with --cpu: another CPU)",
+    )
+    _add_realtime_options(bench)
 
     eds = sub.add_parser(
         "eds",
@@ -223,6 +300,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         trace_path=args.trace,
         bus_log_path=args.bus_log,
         time_mode=TimeMode(args.clock),
+        realtime=_realtime_options(args),
+        overrun_limit=args.overrun_limit,
     )
     if not moves and args.seconds is None:
         raise UsageError("give --move, --move-file or --seconds (otherwise it never ends)")
@@ -268,6 +347,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         seconds=None if args.skip_realtime else args.seconds,
         lockstep=not args.skip_lockstep,
         json_path=args.json,
+        rate_hz=args.rate_hz,
+        rt=_realtime_options(args),
+        drive=args.drive,
+        drive_cpu=args.drive_cpu,
     )
     return 0
 
@@ -306,6 +389,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except BusUnavailableError as exc:
         print(f"{where}: {exc}", file=sys.stderr)
+        return 1
+    except RealTimeRefused as exc:
+        print(f"{where}: refused: {exc}", file=sys.stderr)
         return 1
     except (UsageError, BridgeError, PlantSimError, VirtualBusError) as exc:
         print(f"{where}: error: {exc}", file=sys.stderr)

@@ -191,11 +191,12 @@ def realtime_run(
     seconds: float,
     *,
     rate_hz: float | None = None,
-    rt: RealTimeOptions = RealTimeOptions(),
+    rt: RealTimeOptions | None = None,
     placement: DrivePlacement = DrivePlacement.PROCESS,
     drive_cpu: int | None = None,
 ) -> dict[str, object]:
     """One real-time run (module docstring); returns its figures."""
+    rt = rt or RealTimeOptions()
     axis = axis_at_rate(axis, rate_hz)
     params = bench_params(axis)
     cycles = round(seconds / params.cycle_s)

@@ -357,10 +357,11 @@ class Bridge:
         guard = self.service_guard_s
         spin = self.pacer.spin_s
         gc_control = self.gc_control
+        receive = self._receive
         while True:
             remaining = due - wall()
-            if remaining <= 0.0:
-                return
+            if remaining <= spin:
+                break
             if remaining > guard:
                 if service:
                     self._serve_one()
@@ -368,9 +369,16 @@ class Bridge:
                 if gc_control is not None and gc_control.due():
                     gc_control.collect()
                     continue
-            msg = self._recv(remaining - spin if remaining > spin else 0.0)
+            msg = self._recv(remaining - spin)
             if msg is not None:
-                self._receive(msg)
+                receive(msg)
+        # the last spin_s: poll the clock, not the bus (a blocking wait wakes late, a bus poll
+        # is a system call); then take what arrived meanwhile, so that a TPDO of an earlier
+        # SYNC is counted late and never used for the next one
+        while wall() < due:
+            pass
+        while (msg := self._recv(0.0)) is not None:
+            receive(msg)
 
     def drain(self) -> None:
         """Handle the frames already received, outside any cycle (TPDOs count as late)."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from plant_sim.axis import AxisConfig
@@ -22,8 +22,9 @@ from virtual_bus import BusConfig, open_bus
 from .busload import layout_load
 from .cycle import BridgeState, Command
 from .interpolator import Move
-from .node import Bridge, BridgeConfig
+from .node import DEFAULT_OVERRUN_LIMIT, Bridge, BridgeConfig
 from .params import BridgeParams
+from .realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 from .recorder import BusLog, TraceRecorder
 from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
 
@@ -45,6 +46,8 @@ class RunOptions:
     trace_path: Path | None = None
     bus_log_path: Path | None = None
     time_mode: TimeMode = TimeMode.REAL_TIME
+    realtime: RealTimeOptions = field(default_factory=RealTimeOptions)
+    overrun_limit: int | None = DEFAULT_OVERRUN_LIMIT
 
 
 @dataclass(frozen=True)
@@ -101,6 +104,8 @@ def run_bridge(options: RunOptions) -> RunResult:
             recorder=recorder,
             bus_log=bus_log,
             keep_timing=True,
+            overrun_limit=options.overrun_limit,
+            gc_control=GcBetweenCycles() if options.realtime.freeze_gc else None,
         )
         try:
             return _loop(bridge, options, params)
@@ -112,6 +117,8 @@ def run_bridge(options: RunOptions) -> RunResult:
 
 def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResult:
     bridge.start()
+    for line in apply_realtime(options.realtime):  # after the start-up, before the loop
+        log.warning("real time: %s", line)
     c = bridge.controller
     for move in options.moves:
         c.queue_move(move)

@@ -38,8 +38,8 @@ DEFAULT_DEADLINE_FRACTION = 0.5
 #: Real time: share of the cycle a SYNC may leave after its instant; later, its slot is
 #: skipped (a late SYNC would shorten the interval to the next one: a bunch).
 DEFAULT_LATE_FRACTION = 0.2
-#: Real time: the last part of the wait for a SYNC instant is spent polling instead of
-#: sleeping (a blocking wait wakes 50-100 µs late on Linux), s.
+#: Real time: the last part of the wait for a SYNC instant is spent polling the clock instead
+#: of sleeping (a blocking wait wakes 50-100 µs late on Linux), s; at most 20 % of the cycle.
 DEFAULT_SPIN_S = 0.0002
 
 
@@ -137,13 +137,15 @@ class RealTimePacer:
         cycle_s: float,
         deadline_fraction: float = DEFAULT_DEADLINE_FRACTION,
         wall: WallClock = time.monotonic,
-        spin_s: float = DEFAULT_SPIN_S,
+        spin_s: float | None = None,
         late_fraction: float = DEFAULT_LATE_FRACTION,
     ) -> None:
         self.cycle_s = _positive("cycle_s", cycle_s, 1.0)
         self.deadline_fraction = _positive("deadline_fraction", deadline_fraction, 0.95)
         self.late_fraction = _positive("late_fraction", late_fraction, 0.5)
         self.late_s = self.late_fraction * self.cycle_s
+        if spin_s is None:
+            spin_s = min(DEFAULT_SPIN_S, 0.2 * self.cycle_s)
         if not (isinstance(spin_s, int | float) and 0.0 <= spin_s <= self.cycle_s):
             raise BridgeConfigError(f"spin_s = {spin_s!r}: must be in [0, cycle_s] s")
         self.spin_s = float(spin_s)
