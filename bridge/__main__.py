@@ -106,7 +106,8 @@ def _cpu(text: str) -> int:
 
 
 def _add_realtime_options(parser: argparse.ArgumentParser) -> None:
-    """--rt-priority, --cpu, --lock-memory, --freeze-gc (bridge.realtime; all off)."""
+    """--rt-priority, --cpu, --lock-memory, --freeze-gc, --busy-poll (bridge.realtime; all
+    off)."""
     parser.add_argument(
         "--rt-priority",
         type=_priority,
@@ -122,6 +123,11 @@ def _add_realtime_options(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="freeze the garbage collector after start-up; collect only between cycles",
     )
+    parser.add_argument(
+        "--busy-poll",
+        action="store_true",
+        help="poll the bus while waiting for the TPDOs instead of blocking (for an isolated CPU)",
+    )
 
 
 def _realtime_options(args: argparse.Namespace) -> RealTimeOptions:
@@ -130,6 +136,7 @@ def _realtime_options(args: argparse.Namespace) -> RealTimeOptions:
         cpu=args.cpu,
         lock_memory=args.lock_memory,
         freeze_gc=args.freeze_gc,
+        busy_poll=args.busy_poll,
     )
 
 

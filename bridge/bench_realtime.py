@@ -194,8 +194,10 @@ def realtime_run(
     rt: RealTimeOptions | None = None,
     placement: DrivePlacement = DrivePlacement.PROCESS,
     drive_cpu: int | None = None,
+    spin_s: float | None = None,
 ) -> dict[str, object]:
-    """One real-time run (module docstring); returns its figures."""
+    """One real-time run (module docstring); returns its figures. ``spin_s``: the pacer's
+    clock polling before each SYNC (None: its default)."""
     rt = rt or RealTimeOptions()
     axis = axis_at_rate(axis, rate_hz)
     params = bench_params(axis)
@@ -228,11 +230,12 @@ def realtime_run(
                 bus,
                 params,
                 axis.kind,
-                RealTimePacer(params.cycle_s),
+                RealTimePacer(params.cycle_s, spin_s=spin_s),
                 config=config,
                 keep_timing=True,
                 overrun_limit=None,
                 gc_control=gc_control,
+                busy_poll=rt.busy_poll,
             )
             stack.callback(bridge.close)
             bridge.start()
@@ -240,12 +243,14 @@ def realtime_run(
             bridge = sim.bridge
             bridge.overrun_limit = None
             bridge.gc_control = gc_control
+            bridge.busy_poll = rt.busy_poll
         _queue_moves(bridge, params, seconds)
         drive_cpu0 = _proc_cpu_s(drive_pid) if drive_pid is not None else 0.0
         result.update(_measure(bridge, cycles, rt))
         if drive_pid is not None:
             drive_cpu_s = _proc_cpu_s(drive_pid) - drive_cpu0
             result["drive_cpu_percent_of_one_core"] = 100.0 * drive_cpu_s / result["seconds"]  # type: ignore[operator]
+        result["spin_us"] = bridge.pacer.spin_s * 1e6
         result.update(summary(bridge.timing, params.cycle_s))
         result["missed_tpdo_cycles"] = bridge.counters.missed_cycles
         result["late_tpdos"] = bridge.counters.late

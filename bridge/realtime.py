@@ -15,6 +15,9 @@ before the refusal stay, and the message says which one failed).
   collector's reach and ``gc.disable()`` stops automatic collections; the loop then collects
   the young generation itself between cycles, when there is time before the next SYNC
   (:class:`GcBetweenCycles`).
+* ``busy_poll``: the loop polls the bus instead of blocking while it waits for the TPDOs of
+  a SYNC (no wake-up latency of a blocking wait; the CPU stays busy during the window --
+  for a dedicated, isolated CPU). Applied by the loop (``Bridge(busy_poll=...)``).
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ class RealTimeOptions:
     cpu: int | None = None
     lock_memory: bool = False
     freeze_gc: bool = False
+    busy_poll: bool = False
 
     def __post_init__(self) -> None:
         low, high = FIFO_PRIORITY_RANGE
@@ -73,6 +77,7 @@ class RealTimeOptions:
             or self.cpu is not None
             or self.lock_memory
             or self.freeze_gc
+            or self.busy_poll
         )
 
     def describe(self) -> str:
@@ -85,6 +90,8 @@ class RealTimeOptions:
             parts.append("mlockall")
         if self.freeze_gc:
             parts.append("gc frozen, collected between cycles")
+        if self.busy_poll:
+            parts.append("bus polled during the TPDO window")
         return ", ".join(parts) or "none (ordinary scheduling)"
 
 

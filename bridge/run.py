@@ -106,6 +106,7 @@ def run_bridge(options: RunOptions) -> RunResult:
             keep_timing=True,
             overrun_limit=options.overrun_limit,
             gc_control=GcBetweenCycles() if options.realtime.freeze_gc else None,
+            busy_poll=options.realtime.busy_poll,
         )
         try:
             return _loop(bridge, options, params)

@@ -271,3 +271,40 @@ def test_gc_runs_only_when_the_loop_calls_it() -> None:
     finally:
         control.stop()
     assert gc.isenabled() == was and gc.get_freeze_count() == 0
+
+
+# --- command line ---------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("argv", "fragment"),
+    [
+        (["bench", "--rt-priority", "0"], "SCHED_FIFO priority is 1..99"),
+        (["bench", "--rt-priority", "high"], "not an integer"),
+        (["bench", "--cpu", "-1"], "CPU number is >= 0"),
+        (["bench", "--rate-hz", "3000"], "invalid choice"),
+        (["bench", "--drive", "elsewhere"], "invalid choice"),
+    ],
+)
+def test_bad_real_time_arguments_exit_2_with_one_line(
+    argv: list[str], fragment: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from bridge.__main__ import main
+
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert fragment in err and err.count("\n") == 1
+
+
+def test_a_refused_real_time_option_exits_1_with_one_line(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    import os
+
+    from bridge.__main__ import main
+
+    cpu = max(os.sched_getaffinity(0)) + 64
+    argv = ["bench", "--skip-lockstep", "--drive", "thread", "--seconds", "0.01", "--cpu", str(cpu)]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert f"--cpu {cpu}" in err and "refused" in err and err.count("\n") == 1
