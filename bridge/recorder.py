@@ -8,13 +8,17 @@
   recorder leaves a file readable up to its last block); optionally kept in memory for
   :meth:`TraceRecorder.trace`.
 * :class:`BusLog`: every frame sent or received, in ``candump -L`` format through python-can's
-  :class:`can.io.CanutilsLogWriter`, timestamps in control time, flushed every
-  ``flush_every`` frames.
+  :class:`can.io.CanutilsLogWriter`: wall-clock epoch timestamps from the first frame on
+  (the SDO start-up too, so can-utils' ``log2asc`` / ``canplayer`` and a second log of the
+  same bus line up), the interface name of the bus (:func:`log_channel`, at most 15
+  characters as a Linux interface name), flushed every ``flush_every`` frames.
 """
 
 from __future__ import annotations
 
+import re
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -22,6 +26,7 @@ import can
 import numpy as np
 
 from plant_sim.trace import Trace, TraceWriter
+from virtual_bus import BusConfig, Interface
 
 from .cycle import CycleController
 
@@ -40,6 +45,8 @@ BASE_COLUMNS = (
 #: and the motor-load difference since enable (load units), the bridge state (2104h value).
 EXTRA_COLUMNS = ("omega_s", "omega_c", "following_error", "motor_load_difference", "state")
 DEFAULT_FLUSH_ROWS = 100
+#: Linux IFNAMSIZ - 1: the longest interface name candump writes and log2asc reads back.
+MAX_IFNAME_CHARS = 15
 
 
 class TraceRecorder:
@@ -139,20 +146,45 @@ class TraceRecorder:
             self._writer.close()
 
 
+def log_channel(config: BusConfig) -> str:
+    """The interface name a candump log of the bus ``config`` carries: the SocketCAN
+    interface (vcan0, can0), the virtual bus's channel or the udp_multicast group, made a valid
+    Linux interface name (at most 15 characters of ``A-Za-z0-9_.-``, as can-utils' ``log2asc``
+    and ``canplayer`` read it): longer names are cut, other characters become ``_``."""
+    if config.interface is Interface.SOCKETCAN or config.interface is Interface.AUTO:
+        name = config.socketcan_channel
+    elif config.interface is Interface.VIRTUAL:
+        name = config.virtual_channel
+    else:
+        name = config.channel or str(config.interface)
+    cleaned = re.sub(r"[^A-Za-z0-9_.\-]", "_", name)[:MAX_IFNAME_CHARS]
+    if cleaned[0] in ".-":
+        cleaned = "_" + cleaned[1:]
+    return cleaned
+
+
 class BusLog:
     """candump-format log (python-can CanutilsLogWriter) of frames sent and received.
 
-    ``clock`` gives the timestamp written for each frame (control time), ``channel`` the
-    channel name written for frames without one. Thread-safe (start-up runs a receive thread).
+    ``clock`` gives the timestamp written for each frame (default ``time.time``: epoch
+    seconds, what candump writes), ``channel`` the interface name written with every frame
+    (at most 15 characters, see :func:`log_channel`). Thread-safe (start-up runs a receive
+    thread).
     """
 
     def __init__(
         self,
         path: str | Path,
-        clock: Callable[[], float],
+        clock: Callable[[], float] = time.time,
         channel: str = "can0",
         flush_every: int = 500,
     ) -> None:
+        if not 1 <= len(channel) <= MAX_IFNAME_CHARS or " " in channel:
+            raise ValueError(
+                f"log channel {channel!r}: allowed 1..{MAX_IFNAME_CHARS} characters without "
+                "spaces (a Linux interface name, as candump writes it)"
+            )
+        self.channel = channel
         self._writer = can.CanutilsLogWriter(str(path), channel=channel)
         self._now = clock
         self._lock = threading.Lock()
@@ -163,6 +195,7 @@ class BusLog:
     def log(self, msg: can.Message, received: bool) -> None:
         msg.is_rx = received
         msg.timestamp = self._now()
+        msg.channel = self.channel
         with self._lock:
             self._writer.on_message_received(msg)
             self.frames += 1

@@ -15,6 +15,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import can
+
 from plant_sim.axis import AxisConfig
 from regulator import RegulatorConfig
 from virtual_bus import BusConfig, open_bus
@@ -25,7 +27,7 @@ from .interpolator import Move
 from .node import DEFAULT_OVERRUN_LIMIT, Bridge, BridgeConfig
 from .params import BridgeParams
 from .realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
-from .recorder import BusLog, TraceRecorder
+from .recorder import BusLog, TraceRecorder, log_channel
 from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
 
 log = logging.getLogger("bridge")
@@ -75,6 +77,14 @@ def params_for(options: RunOptions) -> BridgeParams:
 def run_bridge(options: RunOptions) -> RunResult:
     """Run the bridge as described in the module docstring (blocking)."""
     params = params_for(options)
+    bus = open_bus(options.bus)  # first: a bus that cannot open is the one thing to say
+    try:
+        return _run_on(bus, options, params)
+    finally:
+        bus.shutdown()
+
+
+def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunResult:
     _, load = layout_load(1, params.cycle_s, options.bus.bitrate)
     if load.load_fraction > 0.8:
         log.warning(
@@ -89,31 +99,27 @@ def run_bridge(options: RunOptions) -> RunResult:
         if options.time_mode is TimeMode.REAL_TIME
         else LockstepPacer(params.cycle_s)
     )
-    bus = open_bus(options.bus)
+    recorder = TraceRecorder(options.trace_path, keep=False) if options.trace_path else None
+    bus_log = None
+    if options.bus_log_path is not None:
+        bus_log = BusLog(options.bus_log_path, channel=log_channel(options.bus))
+    bridge = Bridge(
+        bus,
+        params,
+        options.axis.kind,
+        pacer,
+        config=options.bridge,
+        recorder=recorder,
+        bus_log=bus_log,
+        keep_timing=True,
+        overrun_limit=options.overrun_limit,
+        gc_control=GcBetweenCycles() if options.realtime.freeze_gc else None,
+        busy_poll=options.realtime.busy_poll,
+    )
     try:
-        recorder = TraceRecorder(options.trace_path, keep=False) if options.trace_path else None
-        bus_log = None
-        if options.bus_log_path is not None:
-            bus_log = BusLog(options.bus_log_path, pacer.now, channel=options.bus.channel or "can")
-        bridge = Bridge(
-            bus,
-            params,
-            options.axis.kind,
-            pacer,
-            config=options.bridge,
-            recorder=recorder,
-            bus_log=bus_log,
-            keep_timing=True,
-            overrun_limit=options.overrun_limit,
-            gc_control=GcBetweenCycles() if options.realtime.freeze_gc else None,
-            busy_poll=options.realtime.busy_poll,
-        )
-        try:
-            return _loop(bridge, options, params)
-        finally:
-            bridge.close()
+        return _loop(bridge, options, params)
     finally:
-        bus.shutdown()
+        bridge.close()
 
 
 def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResult:

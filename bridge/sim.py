@@ -36,7 +36,7 @@ from .interpolator import Table
 from .node import Bridge, BridgeConfig
 from .objects import PdoCounters
 from .params import BridgeParams
-from .recorder import BusLog, TraceRecorder
+from .recorder import BusLog, TraceRecorder, log_channel
 from .timing import DEFAULT_LOCKSTEP_WAIT_S, LockstepPacer, Pacer, RealTimePacer, TimeMode
 
 
@@ -55,7 +55,7 @@ def _channel_name(interface: Interface, channel: str | None) -> str:
     if channel is not None:
         return channel
     if interface is Interface.VIRTUAL:
-        return f"bridge-sim-{uuid.uuid4().hex[:12]}"
+        return f"sim-{uuid.uuid4().hex[:11]}"  # 15 characters: an interface name
     return "vcan0"
 
 
@@ -125,7 +125,7 @@ def simulated_axis(
             recorder = TraceRecorder(trace_path, keep=keep_trace, disturbance=disturbance)
         bus_log = None
         if bus_log_path is not None:
-            bus_log = BusLog(bus_log_path, pacer.now, channel=name)
+            bus_log = BusLog(bus_log_path, channel=log_channel(bus_config))
         drive = SimulatedDrive(drive_bus, bridge_config.drive_id, axis, drive_config)
         bridge = Bridge(
             bridge_bus,

@@ -10,19 +10,29 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from typing import NoReturn
 
 from .errors import PlantSimError
 
-COMMANDS = ("paper", "sweep", "bench", "simulate", "identify", "diagnose")
+COMMANDS = ("paper", "sweep", "bench", "simulate", "identify", "diagnose", "drive")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error message (no usage dump) and exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
 def _parser() -> tuple[argparse.ArgumentParser, dict[str, object]]:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="python -m plant_sim",
         description="Servo-axis simulator, paper reproduction and diagnosis "
         "(Mohammadiasl, 'Vibration Detection and Backlash Suppression in Machine Tools').",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=_Parser
+    )
     modules: dict[str, object] = {}
     for name in COMMANDS:
         try:

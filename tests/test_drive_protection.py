@@ -90,7 +90,8 @@ def test_setpoint_timeout(
 ) -> None:
     with virtual_rig(axis) as rig:
         rig.sdo.sdo[0x6007].raw = option
-        assert rig.sdo.sdo[0x2102].raw == 3  # default: 3 SYNC cycles
+        assert rig.sdo.sdo[0x2102].raw == 0  # default: off
+        rig.sdo.sdo[0x2102].raw = 3
         states = enable_and_run(rig, increments(10.0), 100)
         assert states[-1] is S.OPERATION_ENABLED
         seen = []
@@ -99,7 +100,7 @@ def test_setpoint_timeout(
             seen.append(state_of(struct.unpack_from("<H", got[TPDO2])[0]))
         assert seen[:2] == [S.OPERATION_ENABLED, S.OPERATION_ENABLED]
         assert seen[2] is first_state  # the 3rd missed SYNC reacts before its TPDO
-        assert emcy(rig)[:2] == (0x8250, 0x11)
+        assert emcy(rig) == (0x8250, 0x11, bytes([0x02, 0x21, 3, option, 0]))
         for _ in range(100):
             got = rig.probe.sync_and_collect([TPDO2])
         assert state_of(struct.unpack_from("<H", got[TPDO2])[0]) is final_state
@@ -124,6 +125,7 @@ def test_quick_stop_after_timeout_ramps_to_standstill(axis: AxisConfig) -> None:
     """605Ah = 2: the quick stop ramp (6085h) lasts at least speed / deceleration; the drive
     switches to Switch on disabled only at standstill (|606Ch| <= 0.1 rad/s)."""
     with virtual_rig(axis) as rig:
+        rig.sdo.sdo[0x2102].raw = 3
         enable_and_run(rig, increments(15.0), 150)
         decel = rig.sdo.sdo[0x6085].raw * 2 * math.pi / INC_PER_REV  # rad/s^2
         trace = []

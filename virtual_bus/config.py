@@ -17,6 +17,7 @@ import can.interfaces
 import can.util
 
 from virtual_bus.errors import BusConfigError
+from virtual_bus.netns import private_namespace_problem
 from virtual_bus.vcan import DEFAULT_VCAN_CHANNEL, check_ifname
 
 #: CAN bit rates of CiA 301 (bit timing table, also CiA 305 LSS table indices 0-4, 6-8),
@@ -34,9 +35,10 @@ CIA301_BITRATES: tuple[int, ...] = (
 DEFAULT_BITRATE = 500_000
 #: Channel of python-can's in-process ``virtual`` interface when none is configured.
 DEFAULT_VIRTUAL_CHANNEL = "backlash-bridge"
-#: python-can interfaces this project refuses: ``udp_multicast`` sends every frame to a real
-#: network interface (house rule: never send traffic to a network interface).
-FORBIDDEN_INTERFACES: frozenset[str] = frozenset({"udp_multicast"})
+#: python-can interfaces this project refuses outside a private network namespace:
+#: ``udp_multicast`` sends every frame to the namespace's network interfaces (house rule: never
+#: send traffic to a host's network interface; see :mod:`virtual_bus.netns`).
+NAMESPACE_ONLY_INTERFACES: frozenset[str] = frozenset({"udp_multicast"})
 
 
 class Interface(Enum):
@@ -61,13 +63,16 @@ def _normalise_interface(value: Interface | str) -> Interface | str:
     for member in Interface:
         if value == member.value:
             return member
-    if value in FORBIDDEN_INTERFACES:
-        raise BusConfigError(
-            f"interface {value!r} is not allowed here: it sends frames to a real network "
-            "interface; use 'virtual' or 'socketcan' (vcan0)"
-        )
-    allowed = sorted(set(can.interfaces.VALID_INTERFACES) - FORBIDDEN_INTERFACES)
+    if value in NAMESPACE_ONLY_INTERFACES:
+        problem = private_namespace_problem()
+        if problem is not None:
+            raise BusConfigError(
+                f"interface {value!r} is not allowed here: it sends frames to a real network "
+                f"interface ({problem}); use it only inside a private network namespace "
+                "(virtual_bus.netns), or use 'virtual' or 'socketcan' (vcan0)"
+            )
     if value not in can.interfaces.VALID_INTERFACES:
+        allowed = sorted(can.interfaces.VALID_INTERFACES)
         raise BusConfigError(
             f"unknown interface {value!r}; allowed: 'auto' or one of python-can's {allowed}"
         )
@@ -82,9 +87,10 @@ class BusConfig:
         in-process ``virtual`` bus), ``Interface.VIRTUAL``, ``Interface.SOCKETCAN``, or the
         python-can name of any other interface (a str from ``can.interfaces.VALID_INTERFACES``;
         the strings "auto", "virtual", "socketcan" are turned into the Enum members).
-    channel: interface-specific channel; ``None`` = ``vcan0`` for SocketCAN and
-        ``"backlash-bridge"`` for the virtual bus. SocketCAN/AUTO channels must be valid Linux
-        interface names.
+    channel: interface-specific channel; ``None`` = ``vcan0`` for SocketCAN,
+        ``"backlash-bridge"`` for the virtual bus and the IPv4 group 239.74.163.2 for
+        ``udp_multicast`` (allowed only inside a private network namespace). SocketCAN/AUTO
+        channels must be valid Linux interface names.
     bitrate: nominal bit rate in bit/s, one of :data:`CIA301_BITRATES`. Used for bus-load
         figures and passed to hardware interfaces; vcan and virtual ignore it.
     receive_own_messages: whether a bus also receives the frames it sends.

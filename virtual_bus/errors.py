@@ -83,3 +83,24 @@ class VcanSetupError(VirtualBusError, OSError):
 
     def __str__(self) -> str:
         return str(self.args[0])
+
+
+class InterfaceUnavailableError(BusConfigError):
+    """python-can could not open the requested interface here (its vendor driver or library
+    is missing, or the channel is wrong). ``interface`` is the python-can name."""
+
+    def __init__(self, message: str, *, interface: str) -> None:
+        super().__init__(message)
+        self.interface = interface
+
+
+class NetnsError(VirtualBusError, OSError):
+    """An ``ip netns`` command failed (not root, no iproute2, ...). ``command`` is the
+    argument list that ran."""
+
+    def __init__(self, message: str, *, command: tuple[str, ...]) -> None:
+        super().__init__(message)
+        self.command = command
+
+    def __str__(self) -> str:
+        return str(self.args[0])

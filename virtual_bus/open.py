@@ -7,12 +7,17 @@ interface. AUTO never picks a hardware CAN interface (that needs ``Interface.SOC
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import can
 
 from virtual_bus.config import BusConfig, Interface
-from virtual_bus.errors import BusUnavailableError, Missing
+from virtual_bus.errors import BusUnavailableError, InterfaceUnavailableError, Missing
+from virtual_bus.netns import UDP_GROUP
+from virtual_bus.udp import LoopbackUdpBus
 from virtual_bus.vcan import DEFAULT_VCAN_CHANNEL, HostProbe, LinkKind
 
 _SYSTEM_PROBE = HostProbe()
@@ -111,13 +116,65 @@ def open_bus(config: BusConfig, probe: HostProbe = _SYSTEM_PROBE) -> can.BusABC:
             ignore_config=True,
             receive_own_messages=config.receive_own_messages,
         )
-    return can.Bus(
-        channel=choice.channel,
-        interface=choice.python_can_interface,
-        ignore_config=True,
-        receive_own_messages=config.receive_own_messages,
-        bitrate=config.bitrate,
-    )
+    if choice.interface == "udp_multicast":
+        return _open_udp(config)
+    with _driver_messages() as said:
+        try:
+            return can.Bus(
+                channel=choice.channel,
+                interface=choice.python_can_interface,
+                ignore_config=True,
+                receive_own_messages=config.receive_own_messages,
+                bitrate=config.bitrate,
+            )
+        except Exception as exc:  # vendor back-ends raise anything (kvaser: NameError)
+            note = f"; python-can said: {said[0]}" if said else ""
+            raise InterfaceUnavailableError(
+                f"python-can cannot open interface {choice.python_can_interface!r} channel "
+                f"{choice.channel!r}: {type(exc).__name__}: {exc}{note} (is its vendor driver "
+                "installed and the channel right?)",
+                interface=choice.python_can_interface,
+            ) from exc
+
+
+def _open_udp(config: BusConfig) -> can.BusABC:
+    if config.receive_own_messages:
+        raise InterfaceUnavailableError(
+            "udp_multicast cannot receive its own messages (receive_own_messages=True)",
+            interface="udp_multicast",
+        )
+    try:
+        return LoopbackUdpBus(config.channel or UDP_GROUP)
+    except can.CanError as exc:
+        cause = exc.__cause__
+        raise InterfaceUnavailableError(
+            f"cannot open udp_multicast on group {config.channel or UDP_GROUP}: {exc}"
+            + (f" ({cause})" if cause else "")
+            + "; inside a namespace made by virtual_bus.netns, lo is up and 224.0.0.0/4 is "
+            "routed to it",
+            interface="udp_multicast",
+        ) from exc
+
+
+@contextmanager
+def _driver_messages() -> Iterator[list[str]]:
+    """Collect what python-can's back-ends log at WARNING or above while a bus opens (e.g.
+    "Kvaser canlib is unavailable."), instead of letting it reach stderr as extra lines."""
+    said: list[str] = []
+
+    class _Collect(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            said.append(record.getMessage())
+
+    logger = logging.getLogger("can")
+    handler = _Collect(logging.WARNING)
+    logger.addHandler(handler)
+    propagate, logger.propagate = logger.propagate, False
+    try:
+        yield said
+    finally:
+        logger.propagate = propagate
+        logger.removeHandler(handler)
 
 
 def available_modes(

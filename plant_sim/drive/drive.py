@@ -58,7 +58,15 @@ from .servo import ServoAxis
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["DriveConfig", "SimulatedDrive", "TimeMode"]
+__all__ = ["DriveConfig", "SimulatedDrive", "TimeMode", "warm_up"]
+
+
+def warm_up(axis: AxisConfig) -> None:
+    """Load (or compile, on an empty numba cache) both physics kernels the drive steps:
+    ``advance`` (Operation enabled, ramps) and ``advance_torque`` (every other state)."""
+    plant = AxisPlant(axis)
+    plant.advance(0.0)
+    plant.advance_torque(0.0)
 
 
 class SimulatedDrive:
@@ -164,8 +172,9 @@ class SimulatedDrive:
 
         Like a real drive, it finishes booting before it announces itself: the compiled
         physics is loaded (numba cache, or compiled on a fresh checkout: seconds) on a
-        throw-away plant first, so the first SYNC is answered at the normal pace."""
-        AxisPlant(self._plant.axis).advance(0.0)
+        throw-away plant first, both kernels (speed loop and power stage off), so neither
+        the first SYNC nor an SDO request waiting behind it is held up by a compilation."""
+        warm_up(self._plant.axis)
         with self._lock:
             if self._started:
                 raise DriveStateError(f"drive {self.node_id} is already started")

@@ -11,6 +11,14 @@ Error codes (CiA 301 table 21 / CiA 402 annex):
 | 0x8240  | unexpected SYNC data length                    | generic, communication      |
 | 0x8250  | RPDO timeout: no set point for 2102h SYNCs     | generic, communication      |
 
+The set point timeout is off by default (2102h = 0): a master may send RPDO1 only when the
+set point changes (CiA 301 allows it; python canopen's ``PdoMap.transmit`` does exactly that),
+and a drive must not stop such a master's axis for holding still. A master that repeats its
+RPDO every SYNC (the bridge) can ask for the timeout by writing 2102h; the reaction is the
+CiA 402 abort connection option code 6007h. Its EMCY names the cause in the manufacturer
+bytes (:func:`setpoint_timeout_data`): ``02 21`` (object 2102h, little-endian), the SYNC count
+that ran out, the 6007h option code acted on, 0.
+
 An EMCY frame (CiA 301: code, 1001h, 5 manufacturer bytes) goes out when an error becomes
 active, and an "error reset" EMCY (code 0x0000 with the remaining 1001h) when one is cleared.
 """
@@ -110,6 +118,12 @@ def emcy_data_int32(value: int) -> bytes:
     """5 manufacturer bytes carrying a saturated little-endian INTEGER32 and a zero byte."""
     clamped = max(-(2**31), min(2**31 - 1, value))
     return struct.pack("<lB", clamped, 0)
+
+
+def setpoint_timeout_data(cycles: int, option: int) -> bytes:
+    """5 manufacturer bytes of EMCY 0x8250: the supervising object 2102h (UNSIGNED16 LE), the
+    SYNC cycles without RPDO that ran out (2102h), the 6007h option code acted on, 0."""
+    return struct.pack("<HBbB", 0x2102, cycles & 0xFF, option, 0)
 
 
 class SetpointWatchdog:

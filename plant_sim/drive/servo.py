@@ -47,6 +47,7 @@ from .protection import (
     axis_torque_limit_nm,
     emcy_data_int32,
     encoder_discrepancy,
+    setpoint_timeout_data,
 )
 
 logger = logging.getLogger(__name__)
@@ -258,9 +259,11 @@ class ServoAxis:
         return difference <= self._table.value(O.ENCODER_TOLERANCE)
 
     def _setpoint_timeout(self) -> None:
-        """No RPDO for 2102h SYNCs: EMCY 0x8250 and the 6007h reaction."""
-        self._errors.set(EMCY_RPDO_TIMEOUT)
+        """No RPDO for 2102h SYNCs: EMCY 0x8250 naming the cause (:func:`setpoint_timeout_data`)
+        and the 6007h reaction."""
         option = self._table.value(O.ABORT_CONNECTION_OPTION)
+        cycles = self._table.value(O.SETPOINT_TIMEOUT)
+        self._errors.set(EMCY_RPDO_TIMEOUT, setpoint_timeout_data(cycles, option))
         if option == 1:
             self._fault(EMCY_RPDO_TIMEOUT)
         elif option == 2:

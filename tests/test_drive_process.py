@@ -1,0 +1,281 @@
+"""The simulated drive as its own process (``python -m plant_sim drive``, ``serve``), read by
+python canopen's own master: in-process on ``virtual`` and vcan0, and as a second process over
+``udp_multicast`` inside a private network namespace the test creates and removes."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import canopen
+import pytest
+
+from plant_sim.__main__ import main as plant_sim_main
+from plant_sim.axis import load_axis
+from plant_sim.drive import State402
+from plant_sim.drive.node import NmtState
+from plant_sim.drive.process import DriveProcessConfig, serve
+from virtual_bus import BusConfig, Interface, open_bus
+from virtual_bus.netns import UDP_GROUP, NetworkNamespace, netns_problem
+
+ROOT = Path(__file__).resolve().parents[1]
+AXIS_FILE = ROOT / "config" / "paper_axis.toml"
+EDS = ROOT / "config" / "drive.eds"
+BOOT_TIMEOUT_S = 120.0  # a drive started on an empty numba cache compiles first
+
+
+def _one_line_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    try:
+        code = plant_sim_main(argv)
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    return err
+
+
+DRIVE = ["drive", "--axis", str(AXIS_FILE)]
+
+
+@pytest.mark.parametrize(
+    ("argv", "fragment"),
+    [
+        ([*DRIVE, "--interface", "kvaser", "--channel", "0"], "cannot open interface 'kvaser'"),
+        ([*DRIVE, "--interface", "udp_multicast"], "only inside a private network namespace"),
+        ([*DRIVE, "--interface", "nonsense", "--channel", "0"], "unknown interface"),
+        ([*DRIVE, "--interface", "virtual", "--channel", "x", "--bitrate", "7"], "CiA 301"),
+        (
+            [*DRIVE, "--interface", "virtual", "--channel", "x", "--drive-profile", "no.toml"],
+            "no such file",
+        ),
+        (
+            [*DRIVE, "--interface", "virtual", "--channel", "x", "--drive-profile", str(AXIS_FILE)],
+            "reserved",
+        ),
+        (["drive", "--interface", "virtual", "--axis", "missing.toml"], "missing.toml"),
+        ([*DRIVE, "--interface", "virtual", "--node-id", "0"], "1..127"),
+    ],
+)
+def test_bad_arguments_one_line_exit_2(
+    argv: list[str], fragment: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert fragment in _one_line_exit_2(argv, capsys)
+
+
+# --- in process: serve() on virtual and vcan0 -------------------------------------------------
+def _bus_config(mode: Interface) -> BusConfig:
+    if mode is Interface.SOCKETCAN:
+        return BusConfig(interface=Interface.SOCKETCAN, channel="vcan0")
+    return BusConfig(interface=Interface.VIRTUAL, channel=f"proc-{uuid.uuid4().hex[:10]}")
+
+
+@pytest.fixture
+def served_drive(bus_mode: Interface) -> Iterator[tuple[can.BusABC, threading.Event]]:
+    """serve() in a thread on one end of the bus; yields the master's end (opened first, so
+    it sees the boot-up) and a flag set once serve() has returned."""
+    config = _bus_config(bus_mode)
+    master = open_bus(config)
+    drive_bus = open_bus(config)
+    stop, done = threading.Event(), threading.Event()
+    results: list[object] = []
+
+    def body() -> None:
+        try:
+            results.append(serve(DriveProcessConfig(load_axis(AXIS_FILE)), drive_bus, stop))
+        except BaseException as exc:
+            results.append(exc)
+        finally:
+            done.set()
+
+    thread = threading.Thread(target=body, name="serve")
+    thread.start()
+    try:
+        yield master, done
+    finally:
+        stop.set()
+        thread.join(10.0)
+        drive_bus.shutdown()
+        master.shutdown()
+    assert results and not isinstance(results[0], BaseException), results
+
+
+def _wait_for(bus: can.BusABC, can_id: int, timeout_s: float) -> can.Message:
+    """The first frame with ``can_id`` (bounded wait, no sleep)."""
+    deadline = threading.Event()
+    timer = threading.Timer(timeout_s, deadline.set)
+    timer.start()
+    try:
+        while not deadline.is_set():
+            msg = bus.recv(0.5)
+            if msg is not None and msg.arbitration_id == can_id:
+                return msg
+    finally:
+        timer.cancel()
+    raise TimeoutError(f"no frame 0x{can_id:03X} within {timeout_s} s")
+
+
+def _read_with_canopen(bus: can.BusABC) -> dict[str, int]:
+    """python canopen's own master: SDO uploads with its default 0.3 s timeout, NMT start,
+    one SYNC and TPDO1 received through canopen's PDO machinery."""
+    network = canopen.Network(bus)
+    network.NOTIFIER_CYCLE = 0.05
+    network.connect()
+    try:
+        node = network.add_node(2, str(EDS))
+        got = {
+            "device_type": node.sdo[0x1000].raw,
+            "statusword": node.sdo[0x6041].raw,
+            "mode": node.sdo[0x6502].raw,
+            "cycle_value": node.sdo[0x60C2][1].raw,
+        }
+        node.tpdo.read(from_od=True)
+        received = threading.Event()
+        node.tpdo[1].add_callback(lambda _map: received.set())
+        node.nmt.state = "OPERATIONAL"
+        network.sync.transmit()
+        assert received.wait(5.0), "no TPDO1 after SYNC"
+        got["tpdo1_position"] = node.tpdo[1]["Position actual value"].raw
+        got["syncs"] = node.sdo[0x2103].raw
+        got["heartbeat_operational"] = node.nmt.wait_for_heartbeat(timeout=5.0) == "OPERATIONAL"
+        return got
+    finally:
+        network.disconnect()
+
+
+def test_serve_answers_python_canopen_and_returns_on_stop(
+    served_drive: tuple[can.BusABC, threading.Event],
+) -> None:
+    master, done = served_drive
+    boot = _wait_for(master, 0x702, BOOT_TIMEOUT_S)
+    assert bytes(boot.data) == b"\x00"
+    got = _read_with_canopen(master)
+    assert got["device_type"] == 0x00020192
+    assert got["statusword"] & 0x4F == 0x40  # switch on disabled
+    assert got["mode"] == 0x100 and got["cycle_value"] == 1
+    assert got["tpdo1_position"] == 0 and got["syncs"] == 1 and got["heartbeat_operational"]
+    assert not done.is_set()
+
+
+def test_serve_result_names_the_end_state() -> None:
+    config = _bus_config(Interface.VIRTUAL)
+    bus = open_bus(config)
+    stop = threading.Event()
+    stop.set()  # stop at once: boot-up, then leave the bus
+    try:
+        result = serve(DriveProcessConfig(load_axis(AXIS_FILE), node_id=5), bus, stop)
+    finally:
+        bus.shutdown()
+    assert result.state is State402.SWITCH_ON_DISABLED
+    assert result.nmt_state is NmtState.PRE_OPERATIONAL and result.sync_count == 0
+    assert "switch on disabled" in result.summary()
+
+
+# --- two processes: udp_multicast in a private network namespace -----------------------------
+@pytest.fixture(scope="module")
+def netns_reason() -> str | None:
+    return netns_problem()
+
+
+@pytest.fixture
+def namespace(netns_reason: str | None) -> Iterator[NetworkNamespace]:
+    if netns_reason is not None:
+        pytest.skip(f"cannot create a network namespace here: {netns_reason}")
+    with NetworkNamespace.create() as ns:
+        yield ns
+    assert not ns.exists()
+
+
+def _python(*args: str) -> list[str]:
+    return [sys.executable, *args]
+
+
+def _env(**extra: str) -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT)
+    env.update(extra)
+    return env
+
+
+def test_drive_process_and_canopen_master_over_udp_in_a_namespace(
+    namespace: NetworkNamespace, tmp_path: Path
+) -> None:
+    """The drive command in one process, python canopen's master in another (a script run
+    in the namespace), udp_multicast between them; SIGTERM ends the drive with exit 0 and
+    one line. The numba cache is empty, so the drive compiles before its boot-up, and the
+    master's first SDO right after the boot-up still gets its answer within 0.3 s."""
+    script = tmp_path / "master.py"
+    script.write_text(MASTER_SCRIPT)
+    env = _env(NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
+    master = namespace.popen(_python(str(script), str(EDS)), env=_env())
+    try:
+        assert master.stdout is not None
+        assert master.stdout.readline().strip() == "listening"
+        drive = namespace.popen(
+            _python(
+                "-m", "plant_sim", "drive", "--interface", "udp_multicast", "--axis", str(AXIS_FILE)
+            ),
+            env=env,
+        )
+        try:
+            out, err = master.communicate(timeout=BOOT_TIMEOUT_S + 30)
+            assert master.returncode == 0, err
+            assert out.strip().splitlines()[-1] == (
+                "boot 00; 1000h 0x00020192; 6041h 0x0240; sync -> tpdo1 ok; 2103h 1"
+            )
+        finally:
+            drive.send_signal(signal.SIGTERM)
+            drive_out, drive_err = drive.communicate(timeout=30)
+        assert drive.returncode == 0, drive_err
+        lines = drive_out.strip().splitlines()
+        assert lines[0].startswith("drive 2: boot-up sent on udp_multicast group " + UDP_GROUP)
+        assert lines[-1].startswith("drive 2: stopped on SIGTERM, bus closed; 1 SYNCs served")
+        assert len(lines) == 2 and drive_err == ""
+    finally:
+        if master.poll() is None:
+            master.kill()
+            master.wait()
+
+
+MASTER_SCRIPT = """
+import sys
+import threading
+
+import canopen
+
+from virtual_bus import BusConfig, open_bus
+
+bus = open_bus(BusConfig(interface="udp_multicast"))
+print("listening", flush=True)
+while True:  # the boot-up of node 2
+    msg = bus.recv(150.0)
+    if msg is None:
+        sys.exit("no boot-up")
+    if msg.arbitration_id == 0x702:
+        boot = bytes(msg.data).hex()
+        break
+network = canopen.Network(bus)
+network.NOTIFIER_CYCLE = 0.05
+network.connect()
+try:
+    node = network.add_node(2, sys.argv[1])  # SDO timeout: canopen's default 0.3 s
+    device = node.sdo[0x1000].raw
+    status = node.sdo[0x6041].raw
+    node.tpdo.read(from_od=True)
+    got = threading.Event()
+    node.tpdo[1].add_callback(lambda _map: got.set())
+    node.nmt.state = "OPERATIONAL"
+    network.sync.transmit()
+    tpdo = "ok" if got.wait(5.0) else "missing"
+    syncs = node.sdo[0x2103].raw  # answered while the drive runs its first cycle
+    print(f"boot {boot}; 1000h 0x{device:08X}; 6041h 0x{status:04X}; sync -> tpdo1 {tpdo}; "
+          f"2103h {syncs}")
+finally:
+    network.disconnect()
+"""
