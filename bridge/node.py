@@ -431,13 +431,15 @@ class Bridge:
         recv = self._recv
         receive = self._receive
         busy_poll = self.busy_poll
+        # until both TPDOs are in or the window is over; frames already received when it is
+        # over still count (the loop may have been preempted while they were waiting)
         while slots[0] is None or slots[1] is None:
             remaining = end - wall()
-            if remaining <= 0.0:
-                break
-            msg = recv(0.0 if busy_poll else remaining)
+            msg = recv(remaining if remaining > 0.0 and not busy_poll else 0.0)
             if msg is not None:
                 receive(msg)
+            elif remaining <= 0.0:
+                break
         self._window_open = False
         inputs_wall = wall()
         counters = self.counters
