@@ -5,8 +5,9 @@ forth. Where the simulated drive runs (:class:`DrivePlacement`):
 
 * ``PROCESS`` (default, needs root): the drive is its own process; both share a python-can
   ``udp_multicast`` bus inside a private network namespace created for the run and removed
-  after it (:mod:`virtual_bus.netns`; never on the host's interfaces). The figures are the
-  bridge's: its loop does not share an interpreter with the drive's physics.
+  after it (:mod:`virtual_bus.netns`; never on the host's interfaces): ``python -m plant_sim
+  drive`` in the namespace, the bench's own thread moved into it (setns) for its bus. The
+  figures are the bridge's: its loop does not share an interpreter with the drive's physics.
 * ``THREAD``: the drive in the bridge's process on python-can's virtual bus (what ran before;
   the drive's Python work and threads compete with the loop for the GIL).
 
@@ -36,6 +37,8 @@ import can
 
 from plant_sim.axis import AxisConfig, dump_axis
 from regulator import RegulatorConfig
+from virtual_bus import BusConfig, open_bus
+from virtual_bus.netns import UDP_GROUP, NetworkNamespace
 
 from .cycle import BridgeState
 from .errors import BridgeError
@@ -46,8 +49,6 @@ from .params import BridgeParams
 from .realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 from .timing import RealTimePacer
 
-#: udp_multicast group inside the private namespace (python-can's default IPv4 group).
-MULTICAST_GROUP = "239.74.163.2"
 #: Wall time the drive process gets to boot (loading its compiled physics), s.
 DRIVE_BOOT_TIMEOUT_S = 120.0
 
@@ -74,33 +75,26 @@ CLONE_NEWNET = 0x40000000
 
 
 @contextlib.contextmanager
-def _private_netns() -> Iterator[str]:
-    """A network namespace of our own (loopback up, multicast routed on it), removed after."""
-    name = f"bridge-bench-{os.getpid()}"
-    subprocess.run(["ip", "netns", "add", name], check=True)
-    try:
-        subprocess.run(["ip", "-n", name, "link", "set", "lo", "up"], check=True)
-        subprocess.run(["ip", "-n", name, "route", "add", "224.0.0.0/4", "dev", "lo"], check=True)
-        yield name
-    finally:
-        subprocess.run(["ip", "netns", "del", name], check=False)
-
-
-@contextlib.contextmanager
-def _entered(name: str) -> Iterator[None]:
-    """The calling thread (and processes it starts) in namespace ``name`` (setns(2))."""
+def _entered(ns: NetworkNamespace) -> Iterator[None]:
+    """The calling thread in the namespace ``ns`` (setns(2)) for the block: the bridge's bus
+    socket is opened in it. The thread returns to its own namespace afterwards."""
     libc = ctypes.CDLL(None, use_errno=True)
     own = os.open("/proc/thread-self/ns/net", os.O_RDONLY)
-    target = os.open(f"/var/run/netns/{name}", os.O_RDONLY)
     try:
-        if libc.setns(target, CLONE_NEWNET) != 0:
-            raise OSError(ctypes.get_errno(), f"setns into network namespace {name} failed")
+        target = os.open(f"/var/run/netns/{ns.name}", os.O_RDONLY)
+        try:
+            if libc.setns(target, CLONE_NEWNET) != 0:
+                errno = ctypes.get_errno()
+                raise OSError(
+                    errno, f"setns into network namespace {ns.name}: {os.strerror(errno)}"
+                )
+        finally:
+            os.close(target)
         try:
             yield
         finally:
             libc.setns(own, CLONE_NEWNET)
     finally:
-        os.close(target)
         os.close(own)
 
 
@@ -110,16 +104,26 @@ def _proc_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _drive_command(axis_path: Path, rt: RealTimeOptions, drive_cpu: int | None) -> list[str]:
-    cmd = [
-        sys.executable,
-        "-m",
-        "bridge.bench_drive",
-        str(axis_path),
-        "--channel",
-        MULTICAST_GROUP,
-    ]
-    if rt.rt_priority is not None:  # the drive answers SYNC: as urgent as the loop, minus one
+def _drive_command(
+    ns: NetworkNamespace, axis_path: Path, rt: RealTimeOptions, drive_cpu: int | None
+) -> list[str]:
+    """``python -m plant_sim drive`` on udp_multicast inside ``ns``; with ``rt_priority`` the
+    drive runs under SCHED_FIFO one below the loop (it answers the SYNC), on ``drive_cpu``."""
+    cmd = ns.command(
+        [
+            sys.executable,
+            "-m",
+            "plant_sim",
+            "drive",
+            "--interface",
+            "udp_multicast",
+            "--channel",
+            UDP_GROUP,
+            "--axis",
+            str(axis_path),
+        ]
+    )
+    if rt.rt_priority is not None:
         cmd = ["chrt", "-f", str(max(1, rt.rt_priority - 1)), *cmd]
     if drive_cpu is not None:
         cmd = ["taskset", "-c", str(drive_cpu), *cmd]
@@ -141,23 +145,31 @@ def _wait_for_boot(bus: can.BusABC, drive_id: int, proc: subprocess.Popen[bytes]
 def _process_drive(
     axis: AxisConfig, rt: RealTimeOptions, drive_cpu: int | None, drive_id: int
 ) -> Iterator[tuple[can.BusABC, subprocess.Popen[bytes]]]:
-    with tempfile.TemporaryDirectory() as tmp, _private_netns() as name, _entered(name):
+    """The drive process and the bridge's end of the bus, in a private network namespace
+    created for the block and removed after it."""
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        NetworkNamespace.create() as ns,
+        _entered(ns),
+    ):
         axis_path = Path(tmp) / "axis.toml"
         axis_path.write_text(dump_axis(axis), encoding="utf-8")
-        bus = can.Bus(
-            interface="udp_multicast", channel=MULTICAST_GROUP, receive_own_messages=False
-        )
-        proc = subprocess.Popen(_drive_command(axis_path, rt, drive_cpu))
+        bus = open_bus(BusConfig(interface="udp_multicast", channel=UDP_GROUP))
         try:
-            _wait_for_boot(bus, drive_id, proc)
-            yield bus, proc
-        finally:
-            proc.send_signal(signal.SIGTERM)
+            proc = subprocess.Popen(
+                _drive_command(ns, axis_path, rt, drive_cpu), stdout=subprocess.DEVNULL
+            )
             try:
-                proc.wait(10.0)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+                _wait_for_boot(bus, drive_id, proc)
+                yield bus, proc
+            finally:
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(10.0)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+        finally:
             bus.shutdown()
 
 

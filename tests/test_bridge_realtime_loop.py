@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import gc
 import itertools
+import json
 import math
+import subprocess
+from pathlib import Path
 
 import can
 import pytest
@@ -308,3 +311,26 @@ def test_a_refused_real_time_option_exits_1_with_one_line(
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert f"--cpu {cpu}" in err and "refused" in err and err.count("\n") == 1
+
+
+def test_bench_with_the_drive_in_its_own_process(tmp_path: Path) -> None:
+    """The real-time bench runs the drive as a second process (python -m plant_sim drive) on
+    udp_multicast in a namespace of its own, and removes that namespace; no timing checked."""
+    from virtual_bus.netns import netns_problem
+
+    if (problem := netns_problem()) is not None:
+        pytest.skip(problem)
+    from bridge.__main__ import main
+
+    before = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    out = tmp_path / "bench.json"
+    argv = ["bench", "--skip-lockstep", "--drive", "process", "--seconds", "0.3", "--json"]
+    assert main([*argv, str(out)]) == 0
+    after = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    assert after == before  # the bench's namespace is gone
+    r = json.loads(out.read_text())["realtime"]
+    assert r["drive"] == "process" and r["cycles"] > 0
+    assert r["cycles"] + r["skipped_syncs"] >= 300  # every slot of 0.3 s: run or skipped
+    assert r["missed_tpdo_cycles"] < r["cycles"]  # the drive process answered
+    assert sum(r["latency_histogram_us"].values()) == r["cycles"]
+    assert r["drive_cpu_percent_of_one_core"] > 0.0
