@@ -35,6 +35,8 @@ class Timing:
         self.max_consecutive_overruns = 0
         self.service_dropped = 0  # frames between cycles dropped: the service ring was full
         self.errors = 0  # exceptions caught on the cycle path (logged)
+        #: cycle numbers (SYNCs sent before) of the first overruns, for diagnosis
+        self.first_overruns: list[int] = []
 
     def record(self, sync_late_s: float, latency_s: float, compute_s: float) -> None:
         i = self.n
@@ -50,6 +52,8 @@ class Timing:
     def overran(self, skipped: int) -> int:
         """Account the slots skipped before this SYNC; returns the overruns in a row."""
         if skipped:
+            if len(self.first_overruns) < 16:
+                self.first_overruns.append(self.n)
             self.skipped_syncs += skipped
             self.overruns += 1
             self.consecutive_overruns += 1
@@ -111,6 +115,7 @@ def summary(timing: Timing, cycle_s: float) -> dict[str, object]:
     out["skipped_syncs"] = timing.skipped_syncs
     out["overruns"] = timing.overruns
     out["max_consecutive_overruns"] = timing.max_consecutive_overruns
+    out["first_overrun_cycles"] = list(timing.first_overruns)
     out["service_dropped"] = timing.service_dropped
     out["loop_errors"] = timing.errors
     out["cycle_us"] = cycle_s * 1e6
