@@ -52,7 +52,7 @@ from .params import BridgeParams
 from .realtime import GcBetweenCycles
 from .recorder import BusLog, TraceRecorder
 from .scaling import Scaling
-from .timing import Pacer
+from .timing import Pacer, TimeMode
 
 log = logging.getLogger("bridge")
 
@@ -472,6 +472,10 @@ class Bridge:
         gc_control = self.gc_control
         if gc_control is not None:
             gc_control.start()
+        if self.pacer.mode is TimeMode.REAL_TIME:
+            # what queued up since the last cycle (start-up: heartbeats, echoes) is handled
+            # now, not in the first slot's last microseconds
+            self._between_cycles(None)
         try:
             while cycles is None or n < cycles:
                 self.run_cycle()
