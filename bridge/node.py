@@ -472,9 +472,9 @@ class Bridge:
         gc_control = self.gc_control
         if gc_control is not None:
             gc_control.start()
-        if self.pacer.mode is TimeMode.REAL_TIME:
-            # what queued up since the last cycle (start-up: heartbeats, echoes) is handled
-            # now, not in the first slot's last microseconds
+        if self.pacer.mode is TimeMode.REAL_TIME and self.counters.cycles == 0:
+            # what queued up during the start-up (heartbeats, echoes) is handled before the
+            # schedule starts, not in the first slot's last microseconds
             self._between_cycles(None)
         try:
             while cycles is None or n < cycles:
