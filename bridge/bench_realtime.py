@@ -43,7 +43,7 @@ from virtual_bus.netns import UDP_GROUP, NetworkNamespace
 from .cycle import BridgeState
 from .errors import BridgeError
 from .interpolator import Move
-from .loopstats import summary
+from .loopstats import Timing, summary
 from .node import Bridge, BridgeConfig
 from .params import BridgeParams
 from .realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
@@ -257,6 +257,7 @@ def realtime_run(
             bridge.gc_control = gc_control
             bridge.busy_poll = rt.busy_poll
         _queue_moves(bridge, params, seconds)
+        bridge.timing = Timing(capacity=cycles + 64)  # no array grows during the run
         drive_cpu0 = _proc_cpu_s(drive_pid) if drive_pid is not None else 0.0
         result.update(_measure(bridge, cycles, rt))
         if drive_pid is not None:

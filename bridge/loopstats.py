@@ -25,9 +25,10 @@ class Timing:
 
     def __init__(self, capacity: int = 65536) -> None:
         capacity = max(16, capacity)
-        self._late = np.zeros(capacity)
-        self._latency = np.zeros(capacity)
-        self._compute = np.zeros(capacity)
+        # written now (np.full, not np.zeros), so no page is first touched in a cycle
+        self._late = np.full(capacity, 0.0)
+        self._latency = np.full(capacity, 0.0)
+        self._compute = np.full(capacity, 0.0)
         self.n = 0
         self.skipped_syncs = 0
         self.overruns = 0
