@@ -138,6 +138,11 @@ def run_bench(
             f"loop CPU {r['cpu_us_per_cycle']:.0f} µs/cycle"
         )
         print(f"latency histogram (µs): {r['latency_histogram_us']}")
+        print(
+            f"host alone (a clock-reading thread, same options, {r['host_gaps_over_50us']} gaps "
+            f"> 50 µs in 2 s, longest {r['host_gap_us_max']:.0f} µs): the floor under the "
+            "loop's maximum"
+        )
     if json_path is not None:
         json_path.write_text(json.dumps(results, indent=2) + "\n")
     return results

@@ -182,15 +182,48 @@ def _queue_moves(bridge: Bridge, params: BridgeParams, seconds: float) -> None:
         )
 
 
+#: The host's own floor is measured this long before the run, s.
+HOST_FLOOR_S = 2.0
+#: A gap in the clock-reading spin longer than this counts as the host taking the CPU, s.
+HOST_GAP_S = 50e-6
+
+
+def host_floor(seconds: float = HOST_FLOOR_S) -> dict[str, float]:
+    """What the host alone does to a thread that only reads the clock (with the real-time
+    options already applied), 0.6 ms of every millisecond, sleeping the rest (like the loop;
+    a thread at real-time priority that never sleeps is throttled by the kernel): gaps longer
+    than :data:`HOST_GAP_S` between two readings, their number and the longest. No bridge
+    involved -- a latency maximum of the loop near the longest gap is the host's (interrupts,
+    other tasks, the hypervisor), not the loop's."""
+    wall = time.monotonic
+    end = wall() + seconds
+    longest = 0.0
+    count = 0
+    while wall() < end:
+        last = wall()
+        spin_end = last + 0.0006
+        while last < spin_end:
+            now = wall()
+            gap = now - last
+            if gap > HOST_GAP_S:
+                count += 1
+                longest = max(longest, gap)
+            last = now
+        time.sleep(0.0003)
+    return {"host_gaps_over_50us": count, "host_gap_us_max": longest * 1e6}
+
+
 def _measure(bridge: Bridge, cycles: int, rt: RealTimeOptions) -> dict[str, float]:
     applied = apply_realtime(rt)
     for line in applied:
         print(f"bench: {line}")
+    floor = host_floor()
     wall0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
     n = bridge.run(until=lambda b: b.cycle_index >= cycles)
     wall = time.perf_counter() - wall0
     cpu, thread = time.process_time() - cpu0, time.thread_time() - thread0
     return {
+        **floor,
         "seconds": wall,
         "cycles": n,
         "cpu_us_per_cycle": 1e6 * thread / max(1, n),
