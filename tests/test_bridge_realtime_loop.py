@@ -242,6 +242,43 @@ def test_service_frames_wait_for_time_between_cycles() -> None:
     assert handled[-1] - handled[0] > 50 * CYCLE_S  # spread over many cycles
 
 
+def test_the_loop_collects_garbage_only_between_cycles() -> None:
+    """With the collector frozen, the loop collects only while the next SYNC is more than the
+    service guard away, and collections happen (the allocations of the cycles add up)."""
+    clock = Clock()
+    bus = ScriptedBus(clock)
+    control = GcBetweenCycles(threshold=50)
+    bridge = Bridge(
+        bus,  # type: ignore[arg-type]
+        BridgeParams.for_axis(AXIS),
+        AXIS.kind,
+        RealTimePacer(CYCLE_S, wall=clock),
+        config=BridgeConfig(drive_id=DRIVE_ID),
+        wall=clock,
+        gc_control=control,
+    )
+    bridge.start(configure_drive=False)
+    pacer = bridge.pacer
+    assert isinstance(pacer, RealTimePacer)
+    margins: list[float] = []
+    collect = control.collect
+
+    def recorded() -> None:
+        t0 = pacer.begin_cycle(0)
+        assert t0 is not None
+        next_slot = t0 + math.ceil((clock.t - t0) / CYCLE_S) * CYCLE_S
+        margins.append(next_slot - clock.t)
+        assert not gc.isenabled()
+        collect()
+
+    control.collect = recorded  # type: ignore[method-assign]
+    bridge.run(cycles=200)
+    assert gc.isenabled()  # given back after the run
+    assert len(margins) >= 2
+    assert min(margins) > bridge.service_guard_s
+    assert bridge.timing.skipped_syncs == 0
+
+
 def test_real_time_options_are_checked_and_off_by_default() -> None:
     assert not RealTimeOptions().any
     with pytest.raises(ValueError, match=r"1\.\.99"):
