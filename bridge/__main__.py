@@ -57,14 +57,20 @@ def _positive(text: str) -> float:
     return value
 
 
-def _count(text: str) -> int:
+def _integer(text: str, low: int, high: int | None, allowed: str) -> int:
+    """``text`` as an integer in low..high (None: no upper bound), else the one-line error
+    ``'TEXT': ALLOWED``."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be >= 1")
+    if value < low or (high is not None and value > high):
+        raise argparse.ArgumentTypeError(f"{text!r}: {allowed}")
     return value
+
+
+def _count(text: str) -> int:
+    return _integer(text, 1, None, "must be >= 1")
 
 
 def _node_id(text: str) -> int:
@@ -86,23 +92,11 @@ def _read_axis(path: Path) -> AxisConfig:
 
 
 def _priority(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if not 1 <= value <= 99:
-        raise argparse.ArgumentTypeError(f"{text!r}: a SCHED_FIFO priority is 1..99")
-    return value
+    return _integer(text, 1, 99, "a SCHED_FIFO priority is 1..99")
 
 
 def _cpu(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: a CPU number is >= 0")
-    return value
+    return _integer(text, 0, None, "a CPU number is >= 0")
 
 
 def _add_realtime_options(parser: argparse.ArgumentParser) -> None:
