@@ -144,9 +144,9 @@ def _wait_for_boot(bus: can.BusABC, drive_id: int, proc: subprocess.Popen[bytes]
 @contextlib.contextmanager
 def _process_drive(
     axis: AxisConfig, rt: RealTimeOptions, drive_cpu: int | None, drive_id: int
-) -> Iterator[tuple[can.BusABC, subprocess.Popen[bytes]]]:
-    """The drive process and the bridge's end of the bus, in a private network namespace
-    created for the block and removed after it."""
+) -> Iterator[tuple[can.BusABC, subprocess.Popen[bytes], str]]:
+    """The drive process, the bridge's end of the bus and the name of the private network
+    namespace they share (created for the block, removed after it)."""
     with (
         tempfile.TemporaryDirectory() as tmp,
         NetworkNamespace.create() as ns,
@@ -161,7 +161,7 @@ def _process_drive(
             )
             try:
                 _wait_for_boot(bus, drive_id, proc)
-                yield bus, proc
+                yield bus, proc, ns.name
             finally:
                 proc.send_signal(signal.SIGTERM)
                 try:
@@ -256,9 +256,11 @@ def realtime_run(
     }
     with contextlib.ExitStack() as stack:
         if placement is DrivePlacement.PROCESS:
-            bus, proc = stack.enter_context(_process_drive(axis, rt, drive_cpu, config.drive_id))
+            bus, proc, netns = stack.enter_context(
+                _process_drive(axis, rt, drive_cpu, config.drive_id)
+            )
             drive_pid: int | None = proc.pid
-            result["bus"] = "udp_multicast in a private network namespace"
+            result["bus"] = f"udp_multicast in the private network namespace {netns}"
         else:
             from .sim import simulated_axis
             from .timing import TimeMode

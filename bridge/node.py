@@ -64,6 +64,8 @@ SERVICE_RING_FRAMES = 256
 #: Between cycles, frames are handled only while the next SYNC is more than this share of the
 #: cycle away (real time).
 DEFAULT_SERVICE_GUARD_FRACTION = 0.25
+#: Frames read without waiting at the end of a wait (SYNC instant, end of the TPDO window).
+LATE_READ_FRAMES = 16
 #: Cycles in a row that overrun (a SYNC slot after them skipped) before the axis is stopped.
 DEFAULT_OVERRUN_LIMIT = 3
 
@@ -381,7 +383,10 @@ class Bridge:
         # SYNC is counted late and never used for the next one
         while wall() < due:
             pass
-        while (msg := self._recv(0.0)) is not None:
+        for _ in range(LATE_READ_FRAMES):  # bounded: a flood of frames cannot hold the SYNC
+            msg = self._recv(0.0)
+            if msg is None:
+                break
             receive(msg)
 
     def drain(self) -> None:
@@ -432,9 +437,15 @@ class Bridge:
         receive = self._receive
         busy_poll = self.busy_poll
         # until both TPDOs are in or the window is over; frames already received when it is
-        # over still count (the loop may have been preempted while they were waiting)
+        # over still count (the loop may have been preempted while they were waiting), at
+        # most LATE_READ_FRAMES of them (a flood of frames cannot hold the cycle)
+        late_reads = LATE_READ_FRAMES
         while slots[0] is None or slots[1] is None:
             remaining = end - wall()
+            if remaining <= 0.0:
+                late_reads -= 1
+                if late_reads < 0:
+                    break
             msg = recv(remaining if remaining > 0.0 and not busy_poll else 0.0)
             if msg is not None:
                 receive(msg)
