@@ -7,7 +7,8 @@ the contract docs/canopen_layout.md.
 
 Modules: :mod:`.cycle` (the pure per-SYNC controller), :mod:`.node` (the node on the bus and
 its loop), :mod:`.master` (drive start-up over SDO), :mod:`.params` / :mod:`.objects` /
-:mod:`.od` / :mod:`.eds` (parameters, SDO server, object table, EDS), :mod:`.interpolator`,
+:mod:`.od` / :mod:`.eds` (parameters, SDO server, object table, EDS), :mod:`.adapt` /
+:mod:`.profile` / :mod:`.probe` (adapting to a real drive, drive profiles), :mod:`.interpolator`,
 :mod:`.timing` (lockstep and real-time pacing), :mod:`.recorder`, :mod:`.sim` (with the
 simulated drive), :mod:`.busload`, :mod:`.demo`, :mod:`.run`, :mod:`.bench`.
 """
@@ -25,10 +26,12 @@ from .errors import (
     SdoAbort,
 )
 from .interpolator import Interpolator, Move, Table, load_move_file, parse_move
+from .layout import CycleLayout, RxFrame, Signal
 from .master import DriveInfo, DriveMaster, DriveSetup
 from .node import Bridge, BridgeConfig
 from .objects import ObjectServer, PdoCounters
 from .params import BridgeParams
+from .profile import DriveProfile, LoadSource, ModeChoice, ProfileError, load_profile
 from .recorder import BusLog, TraceRecorder
 from .scaling import Scaling
 from .timing import LockstepPacer, RealTimePacer, TimeMode
@@ -43,13 +46,17 @@ __all__ = [
     "BusLog",
     "Command",
     "CycleController",
+    "CycleLayout",
     "DriveInfo",
     "DriveMaster",
+    "DriveProfile",
     "DriveSetup",
     "DriveSetupError",
     "DriveTimeoutError",
     "Interpolator",
+    "LoadSource",
     "LockstepPacer",
+    "ModeChoice",
     "Move",
     "MoveError",
     "MoveFileError",
@@ -57,13 +64,17 @@ __all__ = [
     "ParameterError",
     "PdoCounters",
     "PdoFrameError",
+    "ProfileError",
     "RealTimePacer",
+    "RxFrame",
     "Scaling",
     "SdoAbort",
+    "Signal",
     "StopReason",
     "Table",
     "TimeMode",
     "TraceRecorder",
     "load_move_file",
+    "load_profile",
     "parse_move",
 ]

@@ -1,4 +1,4 @@
-"""``python -m bridge COMMAND``: run, demo, busload, bench, eds.
+"""``python -m bridge COMMAND``: run, demo, busload, bench, eds, config, probe.
 
 Bad arguments or files end with a one-line message and exit status 2 (no traceback); a
 failure while running (drive does not answer, bus error) with a one-line message and 1.
@@ -18,15 +18,20 @@ import can
 
 from plant_sim.axis import AxisConfig, load_axis
 from plant_sim.errors import PlantSimError
+from regulator import RegulatorConfig
+from regulator.errors import RegulatorError
 from virtual_bus import BusConfig, Interface, VirtualBusError
 from virtual_bus.errors import BusUnavailableError
 
 from . import od as objdict
+from . import probe as probe_command
+from .commission import command as config_command
 from .eds import render_eds
 from .errors import BridgeError, DriveSetupError
 from .interpolator import Move, load_move_file, parse_move
 from .layout import check_node_id
 from .node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
+from .profile import load_profile
 from .realtime import RealTimeOptions, RealTimeRefused
 from .timing import TimeMode
 
@@ -87,6 +92,11 @@ def _move(text: str) -> Move:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def default_store_path(axis_path: Path) -> Path:
+    """The bridge's parameter store beside its axis file: ``AXIS.bridge-store.json``."""
+    return axis_path.with_name(f"{axis_path.stem}.bridge-store.json")
+
+
 def _read_axis(path: Path) -> AxisConfig:
     return load_axis(path)
 
@@ -134,6 +144,14 @@ def _realtime_options(args: argparse.Namespace) -> RealTimeOptions:
     )
 
 
+def _regulated_axis(path: Path) -> AxisConfig:
+    """The axis file, refused (RegulatorError) when the regulator cannot run on it (e.g. a
+    position cycle above section VII's sampling limit), before anything is written."""
+    axis = load_axis(path)
+    RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
+    return axis
+
+
 # --- the parser ---------------------------------------------------------------------------------
 def build_parser() -> _Parser:
     parser = _Parser(
@@ -155,7 +173,17 @@ def build_parser() -> _Parser:
     )
     run.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
     run.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
-    run.add_argument("--bitrate", type=int, default=500_000, help="bit/s, a CiA 301 rate")
+    run.add_argument(
+        "--bitrate",
+        type=int,
+        default=1_000_000,
+        help="bit/s, a CiA 301 rate (default 1000000: one axis at 1 ms is 44 %% of it)",
+    )
+    run.add_argument(
+        "--drive-profile",
+        type=Path,
+        help="drive profile (config/drives/*.toml, `probe --out`); default: adapt to the drive",
+    )
     run.add_argument(
         "--node-id",
         type=_node_id,
@@ -187,6 +215,13 @@ def build_parser() -> _Parser:
     )
     run.add_argument("--no-regulator", action="store_true", help="ordinary control (Fig. 1)")
     run.add_argument("--beta-t", type=_positive, help="vibration threshold beta_T, rad/s")
+    run.add_argument(
+        "--store",
+        type=Path,
+        metavar="FILE",
+        help="parameter store of 1010h/1011h, loaded at start (default: beside the axis "
+        "file, AXIS.bridge-store.json)",
+    )
     run.add_argument("--trace", type=Path, help="trace file to write (trace-file.md)")
     run.add_argument("--bus-log", type=Path, help="candump log of the bus traffic")
     run.add_argument(
@@ -227,7 +262,7 @@ def build_parser() -> _Parser:
         help="bus load of the PDO layout (SYNC + TPDO1 + TPDO2 + RPDO1 per axis)",
         description="Worst-case bit stuffing, 11-bit identifiers.",
     )
-    busload.add_argument("--bitrate", type=int, default=500_000, help="bit/s (default 500000)")
+    busload.add_argument("--bitrate", type=int, default=1_000_000, help="bit/s (default 1000000)")
     busload.add_argument("--cycle-us", type=_positive, help="SYNC period in µs (default: axis)")
     busload.add_argument(
         "--axis",
@@ -279,6 +314,17 @@ def build_parser() -> _Parser:
     )
     eds.add_argument("--out", type=Path, default=objdict.DEFAULT_EDS_PATH, help="EDS path")
     eds.add_argument("--check", action="store_true", help="exit 1 if the file differs")
+
+    config = sub.add_parser(
+        config_command.NAME,
+        help=config_command.HELP,
+        description=(config_command.__doc__ or "").split("\n\n")[0],
+    )
+    config_command.add_arguments(config)
+    probe = sub.add_parser(
+        probe_command.NAME, help=probe_command.HELP, description=probe_command.__doc__
+    )
+    probe_command.add_arguments(probe)
     return parser
 
 
@@ -291,8 +337,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
         moves += load_move_file(args.move_file)
     options = RunOptions(
         bus=BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate),
-        axis=_read_axis(args.axis),
-        bridge=BridgeConfig(node_id=args.node_id, drive_id=args.drive_id),
+        axis=_regulated_axis(args.axis),
+        bridge=BridgeConfig(
+            node_id=args.node_id,
+            drive_id=args.drive_id,
+            store_path=args.store or default_store_path(args.axis),
+            profile=None if args.drive_profile is None else load_profile(args.drive_profile),
+        ),
         moves=tuple(moves),
         seconds=args.seconds,
         hold_s=args.hold,
@@ -306,6 +357,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     )
     if not moves and args.seconds is None:
         raise UsageError("give --move, --move-file or --seconds (otherwise it never ends)")
+    store = options.bridge.store_path
+    if store is not None and (store.is_dir() or not store.parent.is_dir()):
+        raise UsageError(f"--store {store}: not a file in an existing directory")
     result = run_bridge(options)
     print(
         f"{result.cycles} cycles; state {result.state.name}; missed TPDOs "
@@ -320,7 +374,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import print_summary, run_demo
 
-    axis = _read_axis(args.axis)
+    axis = _regulated_axis(args.axis)
     interface = Interface.VIRTUAL if args.bus == "virtual" else Interface.SOCKETCAN
     summary = run_demo(args.out, axis, str(args.axis), interface)
     print_summary(summary, args.out)
@@ -343,7 +397,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.skip_lockstep and args.skip_realtime:
         raise UsageError("--skip-lockstep and --skip-realtime together leave nothing to run")
     run_bench(
-        _read_axis(args.axis),
+        _regulated_axis(args.axis),
         cycles=args.cycles,
         seconds=None if args.skip_realtime else args.seconds,
         lockstep=not args.skip_lockstep,
@@ -376,12 +430,16 @@ COMMANDS = {
     "busload": _cmd_busload,
     "bench": _cmd_bench,
     "eds": _cmd_eds,
+    config_command.NAME: config_command.run,
+    probe_command.NAME: probe_command.run,
 }
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    # the bridge's master reports a failed SDO transfer itself, with object and tries
+    logging.getLogger("canopen.sdo.client").setLevel(logging.CRITICAL)
     where = f"{PROG} {args.command}"
     try:
         return COMMANDS[args.command](args)
@@ -394,6 +452,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RealTimeRefused as exc:
         print(f"{where}: refused: {exc}", file=sys.stderr)
         return 1
+    except RegulatorError as exc:
+        axis = getattr(args, "axis", None)
+        print(
+            f"{where}: error: {axis}: the regulator cannot run on this axis: {exc}", file=sys.stderr
+        )
+        return 2
     except (UsageError, BridgeError, PlantSimError, VirtualBusError) as exc:
         print(f"{where}: error: {exc}", file=sys.stderr)
         return 2

@@ -1,7 +1,8 @@
 """The per-SYNC controller: pure and stepped (no bus, no clock, no threads).
 
-:meth:`CycleController.step` gets the payloads of the drive's TPDO1/TPDO2 of one SYNC (or
-``None`` for a missing one) and the control time, and returns the RPDO1 payload (controlword,
+:meth:`CycleController.step` gets the payloads of the frames of one SYNC in the order of its
+:class:`~bridge.layout.CycleLayout` (the contract's: the drive's TPDO1, TPDO2; ``None`` for a
+missing one) and the control time, and returns the RPDO1 payload (controlword,
 target velocity). Between cycles the I/O layer reports heartbeats and EMCYs
 (:meth:`~CycleController.on_heartbeat`, :meth:`~CycleController.on_emcy`), and the SDO server
 changes parameters, sends commands and starts moves.
@@ -11,8 +12,8 @@ Running, per SYNC k (docs/canopen_layout.md: the set point takes effect at SYNC 
 1. measurements at t_k: motor angle theta_m (6064h), load position x_l (60E4h:01), statusword,
    torque, motor speed; a missing TPDO is extrapolated from the last samples;
 2. supervision: PDO loss, heartbeat (1016h), EMCY, drive state, following error, encoder
-   discrepancy -- any of them stops the axis (quick stop, set point 0) with a
-   :class:`StopReason` and a message until a reset command;
+   discrepancy, software position limits (2014h) -- any of them stops the axis (quick stop,
+   set point 0) with a :class:`StopReason` and a message until a reset command;
 3. interpolator: x_ref and its speed, omega_s = k_r * speed;
 4. eq. 7 on the load scale: omega_c = k_r k_v (x_ref - x_l) (:class:`regulator.PositionController`);
 5. eq. 15: omega_r = omega_s - lambda (omega_s - omega_c) (:class:`regulator.BacklashRegulator`),
@@ -22,6 +23,7 @@ Running, per SYNC k (docs/canopen_layout.md: the set point takes effect at SYNC 
 from __future__ import annotations
 
 import logging
+import struct
 from enum import Enum, IntEnum
 
 from canopen.profiles.p402 import State402
@@ -30,9 +32,9 @@ from regulator import BacklashRegulator, PositionController
 
 from .errors import ParameterError, SdoAbort
 from .interpolator import Interpolator, Move, Table
-from .layout import RPDO1_STRUCT, TPDO1_STRUCT, TPDO2_STRUCT
+from .layout import CycleLayout, Signal, contract_layout
 from .params import LOCKED, BridgeParams
-from .scaling import MOTOR_INCREMENTS_PER_RAD, MOTOR_RAD_PER_INCREMENT, Scaling
+from .scaling import Scaling
 
 log = logging.getLogger("bridge")
 
@@ -66,8 +68,9 @@ class StopReason(Enum):
     DRIVE_DISABLED = 7  # the drive left Operation Enabled without a fault
     DRIVE_NMT = 8  # the drive's heartbeat reports boot-up or a non-operational NMT state
     ENABLE_TIMEOUT = 9  # the drive did not reach Operation Enabled within ENABLE_TIMEOUT_S
-    CYCLE_OVERRUN = 10  # the loop overran its cycle (SYNC slots skipped) too often in a row
-    INTERNAL_ERROR = 11  # the controller's own step failed (a bug; the message names it)
+    POSITION_LIMIT = 10  # the load scale is outside 2014h and no move heads back inside
+    CYCLE_OVERRUN = 11  # the loop overran its cycle (SYNC slots skipped) too often in a row
+    INTERNAL_ERROR = 12  # the controller's own step failed (a bug; the message names it)
 
 
 class Command(IntEnum):
@@ -128,6 +131,15 @@ def enable_controlword(state: Drive402State, last_controlword: int) -> int:
     return cw
 
 
+#: index of each signal in the controller's raw sample list
+_SLOT = {
+    Signal.MOTOR_POSITION: 0,
+    Signal.LOAD_POSITION: 1,
+    Signal.STATUSWORD: 2,
+    Signal.TORQUE: 3,
+    Signal.MOTOR_VELOCITY: 4,
+}
+
 CW_STOPPED = State402.CW_QUICK_STOP
 CW_DISABLED = State402.CW_SWITCH_ON
 CW_RUNNING = State402.CW_OPERATION_ENABLED
@@ -142,6 +154,7 @@ class CycleController:
         params: BridgeParams,
         scaling: Scaling,
         state: BridgeState = BridgeState.ENABLING,
+        layout: CycleLayout | None = None,
     ) -> None:
         self.scaling = scaling
         self.state = state
@@ -151,9 +164,8 @@ class CycleController:
         self._build(params)
         self.interpolator = Interpolator(params.cycle_s)
         self._pending: list[Move | Table] = []
-        self._rpdo = bytearray(RPDO1_STRUCT.size)
-        self._unit_per_inc = scaling.load_unit_per_increment
-        self._nm_per_permille = scaling.torque_nm_per_permille
+        self.set_layout(layout or contract_layout(2))
+        self.set_scaling(scaling)
         # measurements (SI) and their history for extrapolation
         self.now_s = 0.0
         self.motor_position_rad = 0.0
@@ -181,6 +193,10 @@ class CycleController:
         self._heartbeat_at: float | None = None
         self._heartbeat_state = NMT_OPERATIONAL
         self._enable_started_s: float | None = None
+        #: node-ID of a CiA 406 encoder supplying the load position (heartbeat-supervised)
+        self.encoder_id: int | None = None
+        self._encoder_heartbeat_at: float | None = None
+        self._encoder_state = NMT_OPERATIONAL
 
     # --- configuration ---------------------------------------------------------------------
     def _build(self, params: BridgeParams) -> None:
@@ -194,6 +210,23 @@ class CycleController:
         self.scaling = scaling
         self._unit_per_inc = scaling.load_unit_per_increment
         self._nm_per_permille = scaling.torque_nm_per_permille
+        self._rad_per_inc = scaling.motor_rad_per_increment
+        self._rad_s_per_unit = 1.0 / scaling.velocity_units_per_rad_s
+        self._units_per_rad_s = scaling.velocity_units_per_rad_s
+
+    def set_layout(self, layout: CycleLayout) -> None:
+        """Decode the frames of ``layout`` from the next step on (start-up only)."""
+        self.layout = layout
+        self._decoders = tuple(
+            (struct.Struct(f.fmt).unpack, tuple(_SLOT[s] for s in f.signals)) for f in layout.frames
+        )
+        self._rpdo_struct = struct.Struct(layout.rpdo_fmt)
+        self._rpdo = bytearray(self._rpdo_struct.size)
+        self._load_measured = layout.load_measured
+        frame_of = {s: i for i, f in enumerate(layout.frames) for s in f.signals}
+        self._position_frame = frame_of[Signal.MOTOR_POSITION]
+        self._load_frame = frame_of.get(Signal.LOAD_POSITION, self._position_frame)
+        self._raw = [0, 0, 0, 0, 0]
 
     @property
     def rpdo_payload(self) -> bytearray:
@@ -228,6 +261,11 @@ class CycleController:
         self._heartbeat_at = now_s
         self._heartbeat_state = nmt_state & 0x7F
 
+    def on_encoder_heartbeat(self, nmt_state: int, now_s: float) -> None:
+        """A heartbeat of the CiA 406 encoder node (:attr:`encoder_id`) at ``now_s``."""
+        self._encoder_heartbeat_at = now_s
+        self._encoder_state = nmt_state & 0x7F
+
     def on_emcy(self, error_code: int, error_register: int) -> None:
         """An EMCY of the drive; code 0000h (error reset) only clears the stored code."""
         self.drive_error_code = error_code
@@ -239,6 +277,8 @@ class CycleController:
         heartbeats during start-up); monitoring begins with the next heartbeat."""
         self._heartbeat_at = None
         self._heartbeat_state = NMT_OPERATIONAL
+        self._encoder_heartbeat_at = None
+        self._encoder_state = NMT_OPERATIONAL
         self._emcy_pending = None
 
     def command(self, command: Command) -> None:
@@ -274,8 +314,30 @@ class CycleController:
         if self.axis_enabled:
             self._stop(reason, message)
 
+    def check_path(self, item: Move | Table) -> None:
+        """Refuse motion whose path leaves the software position limits (2014h): a move's
+        target (its path is the segment from wherever the axis is, so a move from outside
+        back inside is allowed), every sample of a table. ParameterError 0609 0031/0032."""
+        p = self.params
+        if isinstance(item, Move):
+            low = high = item.target
+            what = f"target {item.target:.9g}"
+        else:
+            low, high = float(item.position.min()), float(item.position.max())
+            what = f"table positions {low:.9g}..{high:.9g}"
+        if low < p.position_limit_min or high > p.position_limit_max:
+            raise ParameterError(
+                f"move refused: {what} load units leaves the software position limits "
+                f"2014h [{p.position_limit_min:g}, {p.position_limit_max:g}]",
+                field="target",
+                value=item.target if isinstance(item, Move) else (low, high),
+                abort_code=SdoAbort.TOO_LOW if low < p.position_limit_min else SdoAbort.TOO_HIGH,
+            )
+
     def queue_move(self, item: Move | Table) -> None:
-        """Queue motion: started now when running, else when the axis becomes running."""
+        """Queue motion: started now when running, else when the axis becomes running
+        (refused if its path leaves the software position limits, :meth:`check_path`)."""
+        self.check_path(item)
         if self.state is BridgeState.STOPPED:
             raise ParameterError(
                 f"no motion while stopped ({self.stop_reason.name}); reset first",
@@ -298,6 +360,7 @@ class CycleController:
                 value=item.target,
                 abort_code=SdoAbort.DEVICE_STATE,
             )
+        self.check_path(item)
         self.interpolator.queue(item)
 
     @property
@@ -305,15 +368,16 @@ class CycleController:
         return (self.state is BridgeState.RUNNING and self.interpolator.busy) or bool(self._pending)
 
     # --- the cycle -------------------------------------------------------------------------
-    def step(self, now_s: float, tpdo1: bytes | None, tpdo2: bytes | None) -> bytearray:
-        """One SYNC: measurements in, RPDO1 payload (controlword, 60FFh) out.
+    def step(self, now_s: float, *frames: bytes | None) -> bytearray:
+        """One SYNC: measurements in, RPDO payload (controlword, 60FFh) out.
 
-        ``tpdo1``/``tpdo2``: payloads of the right length, or None when missing this cycle.
-        The returned bytearray is reused by the next call.
+        ``frames``: one payload of the right length per frame of :attr:`layout` (the
+        contract's: TPDO1, TPDO2), or None when missing this cycle. The returned bytearray
+        is reused by the next call.
         """
         self.cycles += 1
         self.now_s = now_s
-        self._measure(tpdo1, tpdo2)
+        self._measure(frames)
         state = self.state
         if state is BridgeState.RUNNING:
             self._run()
@@ -325,24 +389,41 @@ class CycleController:
             self._output(CW_DISABLED, 0.0)
         return self._rpdo
 
-    def _measure(self, tpdo1: bytes | None, tpdo2: bytes | None) -> None:
-        if tpdo2 is not None:
-            sw, torque, speed_inc = TPDO2_STRUCT.unpack(tpdo2)
-            self.statusword = sw
-            self.motor_torque_nm = torque * self._nm_per_permille
-            self.motor_speed_rad_s = speed_inc * MOTOR_RAD_PER_INCREMENT
-        if tpdo1 is not None:
-            pos_inc, load_inc = TPDO1_STRUCT.unpack(tpdo1)
-            load = load_inc * self._unit_per_inc
+    def _measure(self, frames: tuple[bytes | None, ...]) -> None:
+        raw = self._raw
+        missing = False
+        if len(frames) != len(self._decoders):
+            raise ValueError(f"{len(frames)} frames for a layout of {len(self._decoders)}")
+        for (unpack, slots), data in zip(self._decoders, frames):  # noqa: B905 (checked)
+            if data is None:
+                missing = True
+                continue
+            for slot, value in zip(slots, unpack(data)):  # noqa: B905 (same length)
+                raw[slot] = value
+        position_in = frames[self._position_frame] is not None
+        load_in = frames[self._load_frame] is not None
+        # raw: motor position, load position, statusword, torque, motor velocity
+        self.statusword = raw[2]
+        self.motor_torque_nm = raw[3] * self._nm_per_permille
+        self.motor_speed_rad_s = raw[4] * self._rad_s_per_unit
+        if position_in:
+            self.motor_position_rad = raw[0] * self._rad_per_inc
+        elif self._have_sample:  # extrapolate over the lost sample
+            self.motor_position_rad += self.motor_speed_rad_s * self._cycle_s
+        if not self._load_measured:  # position feedback = motor
+            load_in = position_in
+            raw[1] = 0
+            load = self.motor_position_rad / self._kr
+        else:
+            load = raw[1] * self._unit_per_inc
+        if load_in:
             if self._have_sample:
                 self._load_speed = (load - self.load_position) / self._cycle_s
             self.load_position = load
-            self.motor_position_rad = pos_inc * MOTOR_RAD_PER_INCREMENT
             self._have_sample = True
-        elif self._have_sample:  # extrapolate over the lost sample
+        elif self._have_sample:
             self.load_position += self._load_speed * self._cycle_s
-            self.motor_position_rad += self.motor_speed_rad_s * self._cycle_s
-        if tpdo1 is None or tpdo2 is None:
+        if missing:
             self.consecutive_missed += 1
             self.missed_cycles += 1
         else:
@@ -380,6 +461,24 @@ class CycleController:
                     f"drive heartbeat reports {what} 0x{self._heartbeat_state:02X}, "
                     f"not operational (0x05)",
                 )
+        if self._encoder_heartbeat_at is not None:
+            return self._supervise_encoder(self._encoder_heartbeat_at)
+        return False
+
+    def _supervise_encoder(self, last_s: float) -> bool:
+        p = self.params
+        if p.heartbeat_consumer_ms and self.now_s - last_s > p.heartbeat_consumer_ms / 1000.0:
+            return self._stop(
+                StopReason.HEARTBEAT_LOST,
+                f"no heartbeat of encoder node {self.encoder_id} for {self.now_s - last_s:.3f} s"
+                f" (1016h consumer time {p.heartbeat_consumer_ms} ms)",
+            )
+        if self._encoder_state != NMT_OPERATIONAL:
+            return self._stop(
+                StopReason.DRIVE_NMT,
+                f"encoder node {self.encoder_id} heartbeat reports NMT state "
+                f"0x{self._encoder_state:02X}, not operational (0x05)",
+            )
         return False
 
     def _enable(self) -> None:
@@ -453,6 +552,14 @@ class CycleController:
                     f"since enable, above 2009h = {p.discrepancy_limit:g}",
                 )
                 return
+            low, high = p.position_limit_min, p.position_limit_max
+            if (x_l < low and interp.speed <= 0.0) or (x_l > high and interp.speed >= 0.0):
+                self._stop(
+                    StopReason.POSITION_LIMIT,
+                    f"load position {x_l:.9g} load units outside the software position limits "
+                    f"2014h [{low:g}, {high:g}] and no move heads back inside",
+                )
+                return
         omega_r = self.regulator.step(omega_s, omega_c)  # eq. 15
         limit = p.speed_limit_rad_s
         if omega_r > limit:
@@ -464,8 +571,8 @@ class CycleController:
     def _output(self, controlword: int, omega_r: float) -> None:
         self.controlword = controlword
         self.omega_r = omega_r
-        RPDO1_STRUCT.pack_into(
-            self._rpdo, 0, controlword, round(omega_r * MOTOR_INCREMENTS_PER_RAD)
+        self._rpdo_struct.pack_into(
+            self._rpdo, 0, controlword, round(omega_r * self._units_per_rad_s)
         )
 
     def _clear_motion(self) -> None:

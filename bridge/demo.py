@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from plant_sim.axis import AxisConfig
-from plant_sim.model import KernelOptions
+from plant_sim.model import AxisPlant, KernelOptions
 from plant_sim.report import limit_cycle_variant, summarize, write_paper_outputs
 from plant_sim.scenarios import SectionX
 from plant_sim.simulate import simulate
@@ -96,7 +96,11 @@ def bus_runs(
 def run_demo(
     out_dir: Path, axis: AxisConfig, axis_name: str, interface: Interface = Interface.VIRTUAL
 ) -> dict[str, object]:
-    """Everything ``python -m bridge demo`` does; returns summary.json's content."""
+    """Everything ``python -m bridge demo`` does; returns summary.json's content. An axis
+    the bridge or the physics cannot run is refused before ``out_dir`` is made."""
+    reg = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
+    BridgeParams.for_axis(axis, reg)  # the bridge's scaling limits
+    AxisPlant(axis)  # the physics' limits (substeps)
     out_dir.mkdir(parents=True, exist_ok=True)
     scenario = SectionX()
     runs, info = bus_runs(axis, out_dir, scenario, interface)

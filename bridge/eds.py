@@ -1,7 +1,9 @@
 """Rendering of the bridge's object table (:data:`bridge.od.OBJECTS`) as a CiA 306 EDS.
 
 ``python -m bridge eds`` writes ``config/bridge.eds`` with :func:`render_eds`; the output is
-deterministic (no dates) so that a test can compare the committed file with it.
+deterministic (no dates) so that a test can compare the committed file with it. Writable
+objects carry ``StorageLocation`` (a key python-canopen reads into ``storage_location``, as
+CANopenNode's EDS files do): ``PERSIST`` for the parameters 1010h stores, ``RAM`` otherwise.
 """
 
 from __future__ import annotations
@@ -16,10 +18,12 @@ from .od import (
     I32,
     IDENTITY,
     OBJECTS,
+    STORED,
     U8,
     U16,
     U32,
     VS,
+    Access,
     Entry,
     Group,
     R,
@@ -56,6 +60,9 @@ def _entry_lines(section: str, e: Entry) -> list[str]:
         lines.append(f"LowLimit={_fmt_value(e.data_type, e.low)}")
     if e.high is not None:
         lines.append(f"HighLimit={_fmt_value(e.data_type, e.high)}")
+    if e.access in (Access.RW, Access.WO):
+        stored = (e.index, e.subindex) in STORED
+        lines.append(f"StorageLocation={'PERSIST' if stored else 'RAM'}")
     if e.unit:
         lines.append(f"Unit={e.unit}")
     if e.description:
@@ -93,6 +100,7 @@ COMMENTS = (
     "Units: speeds rad/s at the motor, positions in load units (m linear, rad rotary),",
     "move targets/feeds in load-scale increments (nm or urad) like the drive's 60E4h:01.",
     "Invalid writes: 0609 0030/31/32; locked while enabled: 0800 0022; read-only: 0601 0002.",
+    "StorageLocation=PERSIST: saved by 1010h ('save') and loaded at start-up; RAM: not stored.",
 )
 
 

@@ -21,7 +21,9 @@ class SdoAbort(IntEnum):
     VALUE_RANGE = 0x0609_0030  # value range of parameter exceeded (only for write access)
     TOO_HIGH = 0x0609_0031  # value of parameter written too high
     TOO_LOW = 0x0609_0032  # value of parameter written too low
+    HARDWARE = 0x0606_0000  # access failed due to a hardware error (store file not written)
     GENERAL = 0x0800_0000  # general error
+    NOT_STORED = 0x0800_0020  # data cannot be transferred or stored (1010h/1011h signature)
     DEVICE_STATE = 0x0800_0022  # data cannot be stored because of the present device state
 
 
@@ -93,3 +95,32 @@ class DriveSetupError(BridgeError, RuntimeError):
 
 class DriveTimeoutError(DriveSetupError, TimeoutError):
     """The drive did not answer (SDO response, state change, heartbeat) in time."""
+
+
+class StoreError(BridgeConfigError):
+    """The parameter store file (1010h) cannot be read, is malformed or holds values the
+    bridge refuses; ``path`` names the file. The bridge does not start on it."""
+
+    def __init__(self, message: str, *, path: str) -> None:
+        super().__init__(message)
+        self.path = path
+
+
+class CommissionInputError(BridgeConfigError):
+    """Commissioning input refused before anything is sent: an unknown object, a value of the
+    wrong type or out of range, an unreadable DCF or EDS (exit status 2)."""
+
+
+class NodeAccessError(BridgeError, RuntimeError):
+    """A node refused an SDO request or did not answer (exit status 1).
+
+    ``index``/``subindex`` name the object, ``abort_code`` is the node's SDO abort code
+    (``None``: no answer)."""
+
+    def __init__(
+        self, message: str, *, index: int, subindex: int, abort_code: int | None = None
+    ) -> None:
+        super().__init__(message)
+        self.index = index
+        self.subindex = subindex
+        self.abort_code = abort_code

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from enum import Enum
 
 from .errors import BridgeConfigError
 
@@ -119,3 +120,118 @@ class CobIds:
     def sdo_tx(self) -> int:
         """Drive's SDO responses (server -> client)."""
         return 0x580 + self.drive_id
+
+
+# --- the layout the cycle decodes (built at start-up from what the drive has) ------------------
+class Signal(Enum):
+    """A value the cycle takes from the frames of one SYNC (value: the CiA 402 object)."""
+
+    MOTOR_POSITION = 0x6064  # position actual value, drive position units
+    LOAD_POSITION = 0x60E4  # load measuring system (60E4h, a vendor object or a CiA 406 6004h)
+    STATUSWORD = 0x6041
+    TORQUE = 0x6077  # torque actual value, per mille of 6076h
+    MOTOR_VELOCITY = 0x606C  # velocity actual value, drive velocity units
+
+
+#: struct codes of the integer types a mapped object may have, by bit length and signedness.
+_STRUCT_CODE = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h"}
+_STRUCT_CODE |= {(32, False): "I", (32, True): "i"}
+
+
+def struct_code(bits: int, signed: bool) -> str:
+    """The struct format letter of an integer object of ``bits`` bits."""
+    try:
+        return _STRUCT_CODE[(bits, signed)]
+    except KeyError:
+        raise BridgeConfigError(f"{bits}-bit objects cannot be mapped (8, 16 or 32)") from None
+
+
+@dataclass(frozen=True)
+class RxFrame:
+    """A frame the bridge expects after every SYNC: CAN id, payload format, what it carries.
+
+    ``signals[i]`` is the value unpacked by the i-th code of ``fmt`` (little endian)."""
+
+    name: str
+    can_id: int
+    fmt: str
+    signals: tuple[Signal, ...]
+
+    def __post_init__(self) -> None:
+        if len(struct.Struct(self.fmt).unpack(bytes(struct.calcsize(self.fmt)))) != len(
+            self.signals
+        ):
+            raise BridgeConfigError(f"{self.name}: format {self.fmt} does not match the signals")
+
+    @property
+    def dlc(self) -> int:
+        return struct.calcsize(self.fmt)
+
+
+@dataclass(frozen=True)
+class CycleLayout:
+    """What the cycle decodes and encodes (the narrow interface between start-up and cycle).
+
+    frames: the TPDOs (of the drive, and of a CiA 406 encoder if one supplies the load
+    position) expected after every SYNC, in slot order; a missing one is ``None`` in
+    :meth:`bridge.cycle.CycleController.step`. rpdo_can_id / rpdo_fmt: the bridge's set point
+    frame, controlword (UNSIGNED16) then target velocity (INTEGER32). MOTOR_POSITION and
+    STATUSWORD must be carried; without LOAD_POSITION the load position is the motor
+    position over k_r (``position_feedback = "motor"``: the regulator has nothing to do).
+    """
+
+    frames: tuple[RxFrame, ...]
+    rpdo_can_id: int
+    rpdo_fmt: str = "<Hi"
+
+    def __post_init__(self) -> None:
+        carried = [s for f in self.frames for s in f.signals]
+        for needed in (Signal.MOTOR_POSITION, Signal.STATUSWORD):
+            if needed not in carried:
+                raise BridgeConfigError(f"layout carries no {needed.name} (6064h / 6041h)")
+        if len(carried) != len(set(carried)):
+            raise BridgeConfigError("layout carries a signal twice")
+        if not 1 <= len(self.frames) <= 8:
+            raise BridgeConfigError(f"layout with {len(self.frames)} frames: allowed 1..8")
+
+    @property
+    def can_ids(self) -> tuple[int, ...]:
+        return tuple(f.can_id for f in self.frames)
+
+    @property
+    def load_measured(self) -> bool:
+        """A load measuring system is in the layout (else position feedback = motor)."""
+        return any(Signal.LOAD_POSITION in f.signals for f in self.frames)
+
+    @property
+    def rpdo_dlc(self) -> int:
+        return struct.calcsize(self.rpdo_fmt)
+
+    def describe(self) -> str:
+        """One line per frame, for logs and ``bridge probe``."""
+        lines = [
+            f"{f.name} 0x{f.can_id:03X}: " + " + ".join(s.name.lower() for s in f.signals)
+            for f in self.frames
+        ]
+        lines.append(f"RPDO 0x{self.rpdo_can_id:03X}: controlword + target velocity")
+        return "\n".join(lines)
+
+
+def contract_layout(drive_id: int) -> CycleLayout:
+    """The default layout of docs/canopen_layout.md (the simulated drive's)."""
+    s = Signal
+    return CycleLayout(
+        (
+            RxFrame(
+                "TPDO1", TPDO1.cob_id(drive_id), TPDO1.fmt, (s.MOTOR_POSITION, s.LOAD_POSITION)
+            ),
+            RxFrame(
+                "TPDO2",
+                TPDO2.cob_id(drive_id),
+                TPDO2.fmt,
+                (s.STATUSWORD, s.TORQUE, s.MOTOR_VELOCITY),
+            ),
+        ),
+        RPDO1.cob_id(drive_id),
+        RPDO1.fmt,
+    )

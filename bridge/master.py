@@ -1,15 +1,22 @@
-"""Start-up: configure the drive over SDO as a CANopen master does (blocking, off the cycle).
+"""Start-up: read the drive, adapt to it, configure it over SDO (blocking, off the cycle).
 
 Sequence (docs/canopen_layout.md, CiA 301 PDO configuration procedure, CiA 402):
 
 1. NMT "enter pre-operational" to the drive;
-2. each PDO of :data:`bridge.layout.LAYOUT`: COB-ID invalid (bit 31), transmission type,
-   mapping count 0, mapping entries, mapping count, COB-ID valid; the other PDOs of the drive
+2. reads only: 1000h, 1018h, 6502h, the PDO parameters (COB-IDs, transmission types, number
+   of mapping entries of 1800h-1803h/1A00h-1A03h, 1400h-1403h) and the candidate objects of
+   :data:`bridge.adapt.CANDIDATES` (60E4h, 608Fh, 6091h, 6092h, factor groups, 6076h, ...);
+3. :func:`bridge.adapt.plan` builds layout, mode and scaling from those facts and the drive
+   profile -- a missing object fails here, before anything is written;
+4. each PDO of the plan: COB-ID invalid (bit 31), transmission type, mapping count 0,
+   entries, count, COB-ID valid; a mapping entry the drive refuses as not mappable
+   (0604 0041 / 0604 0042) is left out and the layout planned again; the drive's other PDOs
    are switched off (objects the drive lacks are skipped);
-3. 6060h modes of operation = 9 (cyclic synchronous velocity), checked in 6061h;
-4. 1017h producer heartbeat time; 6076h motor rated torque read for the torque scaling;
-5. NMT "start remote node";
-6. CiA 402 state machine to Operation Enabled through 6040h/6041h (paths of
+5. 6060h = 9 (cyclic synchronous velocity) or 3 (profile velocity, with 6083h/6084h opened),
+   checked in 6061h; 1017h producer heartbeat time;
+6. a CiA 406 encoder node supplying the load position: its TPDO1 = 6004h on every SYNC,
+   its heartbeat; NMT start of encoder and drive;
+7. CiA 402 state machine to Operation Enabled through 6040h/6041h (paths of
    ``canopen.profiles.p402.State402``), after a fault reset if the drive is in Fault.
 
 Every step names the object that failed (:class:`~bridge.errors.DriveSetupError`, with the
@@ -24,15 +31,29 @@ import math
 import struct
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import canopen
-from canopen.profiles.p402 import OperationMode
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
+from plant_sim.axis import AxisKind
+
+from .adapt import (
+    CANDIDATES,
+    ENCODER_POSITION,
+    DriveFacts,
+    Item,
+    PdoFacts,
+    PdoPlan,
+    Plan,
+    VelocityMode,
+    plan,
+)
 from .cycle import Drive402State, drive_state, enable_controlword
 from .errors import BridgeConfigError, DriveSetupError, DriveTimeoutError, SdoAbort
-from .layout import LAYOUT, PdoSpec
+from .layout import CycleLayout, Signal, check_node_id
+from .profile import DriveProfile
+from .scaling import LOAD_INCREMENTS_PER_UNIT, Scaling
 
 log = logging.getLogger("bridge")
 
@@ -74,12 +95,31 @@ class DriveSetup:
 
 @dataclass(frozen=True)
 class DriveInfo:
-    """What start-up learned: rated torque (6076h, N·m), statusword and mode at the end."""
+    """What start-up learned: rated torque (6076h, N·m; None: 0 or absent, torque shown in
+    per mille), statusword and mode at the end, and the plan the cycle runs with."""
 
-    rated_torque_nm: float
+    rated_torque_nm: float | None
     statusword: int
     mode_display: int
     sdo_transfers: int
+    layout: CycleLayout
+    scaling: Scaling
+    encoder_id: int | None = None
+    notes: tuple[str, ...] = ()
+
+
+#: SDO abort codes that mean "this object / sub-index is not there".
+_ABSENT = (SdoAbort.NO_OBJECT, SdoAbort.NO_SUBINDEX)
+#: 060A 0023 resource not available: the object exists but has no value to give.
+_NO_DATA = 0x060A_0023
+#: Answers to a mapping entry that mean "not this object": 0604 0041 object cannot be mapped,
+#: 0604 0042 mapping exceeds the PDO length, 0602 0000 object does not exist.
+_NOT_MAPPABLE = (0x0604_0041, 0x0604_0042, SdoAbort.NO_OBJECT)
+
+
+class UnmappableError(DriveSetupError):
+    """The drive refused a mapping entry (:data:`_NOT_MAPPABLE`); the start-up plans again
+    without that object."""
 
 
 class DriveMaster:
@@ -95,9 +135,15 @@ class DriveMaster:
         setup: DriveSetup = DriveSetup(),
         sleep: Callable[[float], None] = time.sleep,
         wall: Callable[[], float] = time.monotonic,
+        *,
+        profile: DriveProfile | None = None,
+        load_increments_per_unit: float = LOAD_INCREMENTS_PER_UNIT[AxisKind.LINEAR],
     ) -> None:
         self.drive = drive
         self.setup = setup
+        self.profile = profile or DriveProfile()
+        self.load_increments_per_unit = load_increments_per_unit
+        self._unmappable: set[tuple[int, int]] = set()
         self._sleep = sleep
         self._wall = wall
         drive.sdo.RESPONSE_TIMEOUT = setup.sdo_timeout_s
@@ -140,31 +186,110 @@ class DriveMaster:
             data = self.drive.sdo.upload(index, subindex)
         return data
 
+    def try_read(self, index: int, subindex: int, what: str = "") -> bytes | None:
+        """Read, or None when the drive has no such object/sub-index (b"" when it exists but
+        has no value to give, 060A 0023)."""
+        try:
+            return self.read(index, subindex, what)
+        except DriveSetupError as exc:
+            if exc.abort_code in _ABSENT:
+                return None
+            if exc.abort_code in (_NO_DATA, SdoAbort.WRITE_ONLY):
+                return b""  # there, but nothing to read
+            raise
+
+    # --- reading the drive ------------------------------------------------------------------
+    def _u32(self, index: int, subindex: int) -> int | None:
+        raw = self.try_read(index, subindex)
+        return int.from_bytes(raw[:4], "little") if raw and len(raw) >= 4 else None
+
+    def _pdo_facts(self, transmit: bool) -> tuple[PdoFacts, ...]:
+        found = []
+        for n in range(1, 5):
+            comm = (0x1800 if transmit else 0x1400) + n - 1
+            mapping = (0x1A00 if transmit else 0x1600) + n - 1
+            cob = self._u32(comm, 1)
+            if cob is None:
+                continue
+            tt_raw = self.try_read(comm, 2)
+            entries = 0
+            for sub in (8, 4, 3, 2, 1):  # highest mapping entry the record has
+                if self.try_read(mapping, sub) is not None:
+                    entries = sub
+                    break
+            found.append(PdoFacts(n, cob, tt_raw[0] if tt_raw else None, entries))
+        return tuple(found)
+
+    def read_facts(self) -> DriveFacts:
+        """Step 2 of the module docstring: reads only, nothing is written."""
+        device_type = self._u32(0x1000, 0)  # first: a node that is not there times out here
+        vendor_id, product_code = self._u32(0x1018, 1), self._u32(0x1018, 2)
+        objects: dict[tuple[int, int], bytes] = {}
+        keys = list(CANDIDATES)
+        if self.profile.load_object is not None:
+            keys.append(self.profile.load_object)
+        for key in keys:
+            raw = self.try_read(*key)
+            if raw is not None:
+                objects[key] = raw
+        modes_raw = self.try_read(0x6502, 0, " (supported drive modes)")
+        return DriveFacts(
+            device_type=device_type,
+            vendor_id=vendor_id,
+            product_code=product_code,
+            supported_modes=int.from_bytes(modes_raw[:4], "little") if modes_raw else None,
+            objects=objects,
+            tpdos=self._pdo_facts(True),
+            rpdos=self._pdo_facts(False),
+        )
+
     # --- steps ----------------------------------------------------------------------------
-    def configure_pdo(self, spec: PdoSpec) -> None:
-        """CiA 301 PDO (re)configuration of one PDO of the layout."""
-        cob = spec.cob_id(self.drive.id)
-        name = f" ({'TPDO' if spec.transmit else 'RPDO'}{spec.number})"
+    def configure_pdo(self, spec: PdoPlan) -> None:
+        """CiA 301 PDO (re)configuration of one PDO of the plan. A mapping entry the drive
+        refuses as not mappable is remembered (:attr:`unmappable`) and re-raised."""
+        cob = spec.cob_id
+        name = f" ({spec.name})"
         self.write(spec.comm_index, 1, _U32.pack(COB_ID_INVALID | cob), name)
         self.write(spec.comm_index, 2, _U8.pack(spec.transmission_type), name)
         self.write(spec.mapping_index, 0, _U8.pack(0), name)
         for i, mapped in enumerate(spec.mapping, start=1):
-            self.write(spec.mapping_index, i, _U32.pack(mapped.entry), name)
+            try:
+                self.write(spec.mapping_index, i, _U32.pack(mapped.entry), name)
+            except DriveSetupError as exc:
+                if exc.abort_code not in _NOT_MAPPABLE:
+                    raise
+                self._unmappable.add((mapped.index, mapped.subindex))
+                raise UnmappableError(
+                    f"{exc} ({mapped.index:04X}h:{mapped.subindex:02X} not mappable)",
+                    index=exc.index,
+                    subindex=exc.subindex,
+                    abort_code=exc.abort_code,
+                ) from None
         self.write(spec.mapping_index, 0, _U8.pack(len(spec.mapping)), name)
         self.write(spec.comm_index, 1, _U32.pack(cob), name)
+
+    @property
+    def unmappable(self) -> frozenset[tuple[int, int]]:
+        """Objects the drive refused to map during this start-up."""
+        return frozenset(self._unmappable)
 
     def disable_pdo(self, transmit: bool, number: int) -> None:
         """Mark a PDO outside the layout invalid; a drive without it is fine."""
         index = (0x1800 if transmit else 0x1400) + number - 1
         cob = (0x180 if transmit else 0x200) + 0x100 * (number - 1) + self.drive.id
+        current = self._u32(index, 1)
+        if current is None:
+            return
+        if current & COB_ID_INVALID:
+            return  # already off
         try:
-            self.write(index, 1, _U32.pack(COB_ID_INVALID | cob))
+            self.write(index, 1, _U32.pack(COB_ID_INVALID | (current & 0x7FF or cob)))
         except DriveSetupError as exc:
             if exc.abort_code not in (SdoAbort.NO_OBJECT, SdoAbort.NO_SUBINDEX):
                 raise
 
-    def set_mode_csv(self) -> int:
-        mode = OperationMode.CYCLIC_SYNCHRONOUS_VELOCITY
+    def set_mode(self, mode: VelocityMode) -> int:
+        """6060h = ``mode``, waiting for 6061h to show it."""
         self.write(0x6060, 0, _I8.pack(mode), " (modes of operation)")
         deadline = self._wall() + self.setup.state_timeout_s
         while True:
@@ -173,12 +298,34 @@ class DriveMaster:
                 return shown
             if self._wall() > deadline:
                 raise DriveTimeoutError(
-                    f"drive {self.drive.id}: 6061h shows mode {shown}, not {mode} (CSV), "
-                    f"{self.setup.state_timeout_s:g} s after 6060h = {mode}",
+                    f"drive {self.drive.id}: 6061h shows mode {shown}, not {int(mode)} "
+                    f"({mode.name}), {self.setup.state_timeout_s:g} s after 6060h = {int(mode)}",
                     index=0x6061,
                     subindex=0,
                 )
             self._sleep(0.005)
+
+    def set_mode_csv(self) -> int:
+        return self.set_mode(VelocityMode.CYCLIC_SYNCHRONOUS_VELOCITY)
+
+    def open_ramps(self, facts: DriveFacts) -> None:
+        """Profile velocity: 6083h/6084h at the profile's ramp or the UNSIGNED32 maximum so
+        that the drive follows the set points (its own ramp stays the limit)."""
+        value = self.profile.ramp or 0xFFFF_FFFF
+        for index, name in ((0x6083, "profile acceleration"), (0x6084, "profile deceleration")):
+            if not facts.has((index, 0)):
+                continue
+            try:
+                self.write(index, 0, _U32.pack(value), f" ({name})")
+            except DriveSetupError as exc:
+                if exc.abort_code in (SdoAbort.VALUE_RANGE, SdoAbort.TOO_HIGH):
+                    raise DriveSetupError(
+                        f"{exc}; set mode.ramp in the drive profile to a value the drive takes",
+                        index=index,
+                        subindex=0,
+                        abort_code=exc.abort_code,
+                    ) from None
+                raise
 
     def statusword(self) -> int:
         return _U16.unpack(self.read(0x6041, 0, " (statusword)")[:2])[0]
@@ -216,34 +363,109 @@ class DriveMaster:
             subindex=0,
         )
 
-    def run(self) -> DriveInfo:
-        """The whole start-up sequence (module docstring); returns what it learned."""
-        nmt = self.drive.nmt
-        nmt.send_command(NMT_PRE_OPERATIONAL)
-        for spec in LAYOUT:
-            self.configure_pdo(spec)
+    def plan(self, facts: DriveFacts) -> Plan:
+        """:func:`bridge.adapt.plan` with the objects found not mappable left out."""
+        profile = self.profile
+        if self._unmappable:
+            known = profile.mappable
+            if known is None:
+                known = frozenset(
+                    k
+                    for k in (*facts.objects, (0x6064, 0), (0x6041, 0))
+                    if k not in self._unmappable
+                )
+            profile = replace(profile, mappable=known - self._unmappable)
+        return plan(facts, profile, self.drive.id, self.load_increments_per_unit)
+
+    def configure(self) -> tuple[Plan, DriveFacts, int]:
+        """Steps 1-5 of the module docstring (the drive stays pre-operational); returns the
+        plan, the facts and the mode shown in 6061h."""
+        self.drive.nmt.send_command(NMT_PRE_OPERATIONAL)
+        facts = self.read_facts()
+        the_plan = self.plan(facts)
+        while True:  # each round leaves out one more object the drive refused to map
+            try:
+                for spec in the_plan.tpdos:
+                    self.configure_pdo(spec)
+                break
+            except UnmappableError as exc:
+                log.warning("drive %d: %s; planning without it", self.drive.id, exc)
+                the_plan = self.plan(facts)
+        self.configure_pdo(the_plan.rpdo)
         if self.setup.disable_other_pdos:
-            used = {(spec.transmit, spec.number) for spec in LAYOUT}
-            for transmit in (True, False):
-                for number in range(1, 5):
-                    if (transmit, number) not in used:
-                        self.disable_pdo(transmit, number)
-        mode = self.set_mode_csv()
+            used = {(p.transmit, p.number) for p in (*the_plan.tpdos, the_plan.rpdo)}
+            for pdo in facts.tpdos:
+                if (True, pdo.number) not in used:
+                    self.disable_pdo(True, pdo.number)
+            for pdo in facts.rpdos:
+                if (False, pdo.number) not in used:
+                    self.disable_pdo(False, pdo.number)
+        if the_plan.mode is VelocityMode.PROFILE_VELOCITY:
+            self.open_ramps(facts)
+        mode = self.set_mode(the_plan.mode)
         self.write(0x1017, 0, _U16.pack(self.setup.heartbeat_producer_ms), " (producer heartbeat)")
-        rated_mnm = _U32.unpack(self.read(0x6076, 0, " (motor rated torque)")[:4])[0]
-        if rated_mnm == 0:
+        return the_plan, facts, mode
+
+    def configure_encoder(self, encoder_id: int) -> None:
+        """CiA 406 encoder node: TPDO1 = 6004h position value on every SYNC, heartbeat."""
+        check_node_id("encoder_id", encoder_id)
+        network = self.drive.network
+        if encoder_id in network:
+            encoder = network[encoder_id]
+        else:
+            encoder = canopen.RemoteNode(encoder_id, canopen.ObjectDictionary())
+            network.add_node(encoder)
+        encoder.sdo.RESPONSE_TIMEOUT = self.setup.sdo_timeout_s
+        encoder.sdo.MAX_RETRIES = self.setup.sdo_retries
+        sub = DriveMaster(encoder, self.setup, self._sleep, self._wall)
+        encoder.nmt.send_command(NMT_PRE_OPERATIONAL)
+        device_type = sub._u32(0x1000, 0)
+        if device_type is not None and device_type & 0xFFFF != 406:
             raise DriveSetupError(
-                f"drive {self.drive.id}: 6076h motor rated torque is 0 mN·m; the torque "
-                "scaling (6077h per mille of it) needs a value > 0",
-                index=0x6076,
+                f"node {encoder_id}: 1000h device type 0x{device_type:08X} is not a CiA 406 "
+                "encoder (low word 406 = 0x196); check load.encoder_id",
+                index=0x1000,
                 subindex=0,
             )
-        nmt.send_command(NMT_START)
+        if sub.try_read(*ENCODER_POSITION) is None:
+            raise DriveSetupError(
+                f"node {encoder_id}: no 6004h position value: not a CiA 406 encoder",
+                index=0x6004,
+                subindex=0,
+            )
+        position = Item(Signal.LOAD_POSITION, ENCODER_POSITION, "u32")
+        tpdo = PdoPlan(1, 0x180 + encoder_id, True, 1, (position,))
+        sub.configure_pdo(tpdo)
+        sub.write(0x1017, 0, _U16.pack(self.setup.heartbeat_producer_ms), " (producer heartbeat)")
+        self.transfers += sub.transfers
+        encoder.nmt.send_command(NMT_START)
+
+    def run(self) -> DriveInfo:
+        """The whole start-up sequence (module docstring); returns what it learned."""
+        the_plan, _facts, mode = self.configure()
+        for note in the_plan.notes:
+            log.warning("drive %d: %s", self.drive.id, note)
+        if the_plan.encoder_id is not None:
+            self.configure_encoder(the_plan.encoder_id)
+        self.drive.nmt.send_command(NMT_START)
         sw = self.enable_operation()
         log.info(
-            "drive %d configured: CSV, rated torque %d mN·m, statusword 0x%04X",
+            "drive %d configured: %s, rated torque %s, statusword 0x%04X; layout:\n%s",
             self.drive.id,
-            rated_mnm,
+            the_plan.mode.name,
+            "unknown (per mille)"
+            if the_plan.rated_torque_mnm is None
+            else f"{the_plan.rated_torque_mnm} mN·m",
             sw,
+            the_plan.layout.describe(),
         )
-        return DriveInfo(rated_mnm / 1000.0, sw, mode, self.transfers)
+        return DriveInfo(
+            the_plan.scaling.rated_torque_nm,
+            sw,
+            mode,
+            self.transfers,
+            the_plan.layout,
+            the_plan.scaling,
+            the_plan.encoder_id,
+            the_plan.notes,
+        )

@@ -43,15 +43,17 @@ from plant_sim.axis import AxisKind
 
 from .cycle import BridgeState, CycleController, StopReason
 from .errors import BridgeConfigError, PdoFrameError
-from .layout import RPDO1, SYNC_COB_ID, TPDO1, TPDO2, CobIds, check_node_id
+from .layout import SYNC_COB_ID, CobIds, CycleLayout, check_node_id, contract_layout
 from .loopstats import Timing
 from .master import DriveInfo, DriveMaster, DriveSetup
 from .objects import ObjectServer, PdoCounters
 from .od import DEFAULT_DRIVE_ID, DEFAULT_EDS_PATH, DEFAULT_NODE_ID, load_od
 from .params import BridgeParams
+from .profile import DriveProfile
 from .realtime import GcBetweenCycles
 from .recorder import BusLog, TraceRecorder
 from .scaling import Scaling
+from .store import ParameterStore
 from .timing import Pacer, TimeMode
 
 log = logging.getLogger("bridge")
@@ -91,6 +93,31 @@ class CycleMessage(can.Message):
         return new
 
 
+@contextlib.contextmanager
+def pumping(
+    recv: Callable[[float | None], can.Message | None],
+    handle: Callable[[can.Message], None],
+    name: str,
+) -> Iterator[None]:
+    """A thread that hands every received frame to ``handle`` while the block runs (the SDO
+    client's answers during start-up and ``bridge probe``)."""
+    stop = threading.Event()
+
+    def pump() -> None:
+        while not stop.is_set():
+            msg = recv(0.005)
+            if msg is not None:
+                handle(msg)
+
+    thread = threading.Thread(target=pump, name=name, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
 class BusPort:
     """The bridge's side of the bus: every frame sent or received passes here and goes to the
     bus log (if any). canopen's Network sends through :meth:`send` too."""
@@ -114,12 +141,20 @@ class BusPort:
 
 @dataclass(frozen=True)
 class BridgeConfig:
-    """Identity of the bridge on the bus and how it starts the drive."""
+    """Identity of the bridge on the bus, how it starts the drive, where it stores its
+    parameters (1010h; loaded when the bridge is built, over the given params).
+
+    profile: the drive profile (:mod:`bridge.profile`, ``--drive-profile``); ``None``: the
+    start-up adapts to what the drive reports, with the contract's scaling as the default.
+    """
 
     node_id: int = DEFAULT_NODE_ID
     drive_id: int = DEFAULT_DRIVE_ID
     eds_path: Path = DEFAULT_EDS_PATH
     drive_setup: DriveSetup = field(default_factory=DriveSetup)
+    #: Parameter store of 1010h/1011h (bridge.store); None: the bridge stores nothing.
+    store_path: Path | None = None
+    profile: DriveProfile | None = None
 
     def __post_init__(self) -> None:
         check_node_id("node_id", self.node_id)
@@ -174,9 +209,17 @@ class Bridge:
         self.counters = PdoCounters()
         self.scaling = Scaling.for_kind(kind)
         self.controller = CycleController(params, self.scaling, state=BridgeState.CONFIGURING)
+        store = None if config.store_path is None else ParameterStore(config.store_path)
         self.objects = ObjectServer(
-            self.controller, self.counters, self.scaling.load_increments_per_unit, config.drive_id
+            self.controller,
+            self.counters,
+            self.scaling.load_increments_per_unit,
+            config.drive_id,
+            store,
         )
+        if store is not None and (stored := store.load()) is not None:
+            self.controller.set_params(self.objects.apply_stored(stored, str(store.path)))
+            log.info("parameters loaded from %s", store.path)
         self.objects.attach(self.node)
         self.timing = Timing(16 if not keep_timing else 65536)
         self._keep_timing = keep_timing
@@ -193,19 +236,13 @@ class Bridge:
         self.busy_poll = busy_poll
         self._service: deque[can.Message] = deque()
         self._k = 0
-        self._slots: list[bytearray | None] = [None, None]
         self._window_open = False
         self._record_pending = False
         self._sync_msg = CycleMessage(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
         self._sync_msg.is_rx = False
-        self._rpdo_msg = CycleMessage(
-            arbitration_id=self.ids.rpdo1, data=bytes(RPDO1.dlc), is_extended_id=False
-        )
-        self._rpdo_msg.is_rx = False
-        self._rpdo_msg.data = self.controller.rpdo_payload  # rewritten in place every cycle
-        self._tpdo_ids = (self.ids.tpdo1, self.ids.tpdo2)
+        self._encoder_heartbeat = -1
         self._supervision_ids = frozenset((self.ids.emcy, self.ids.heartbeat))
-        self._tpdo_dlc = (TPDO1.dlc, TPDO2.dlc)
+        self.use_layout(contract_layout(config.drive_id))
         self.drive_info: DriveInfo | None = None
         #: Called with k before SYNC k is sent (a harness hook, e.g. the simulated drive's
         #: disturbance input in the demo); None: nothing.
@@ -214,16 +251,32 @@ class Bridge:
         #: after the SYNC has gone out, so the peer answers before the bridge waits
         self.peer_poll: Callable[[], int] | None = None
 
+    def use_layout(self, layout: CycleLayout) -> None:
+        """Expect the frames of ``layout`` after every SYNC and send its RPDO (start-up)."""
+        self.layout = layout
+        self.controller.set_layout(layout)
+        self._tpdo_ids = layout.can_ids
+        self._tpdo_dlc = tuple(f.dlc for f in layout.frames)
+        self._slot_of = {cid: i for i, cid in enumerate(self._tpdo_ids)}
+        self._slots: list[bytearray | None] = [None] * len(self._tpdo_ids)
+        self._rpdo_msg = CycleMessage(
+            arbitration_id=layout.rpdo_can_id, data=bytes(layout.rpdo_dlc), is_extended_id=False
+        )
+        self._rpdo_msg.is_rx = False
+        self._rpdo_msg.data = self.controller.rpdo_payload  # rewritten in place every cycle
+
     # --- frames -----------------------------------------------------------------------------
     def dispatch(self, msg: can.Message) -> None:
         """Handle one received frame (TPDO slots, heartbeat, EMCY, canopen services)."""
         cid = msg.arbitration_id
-        if cid == self._tpdo_ids[0]:
-            self._tpdo(0, msg.data)
-        elif cid == self._tpdo_ids[1]:
-            self._tpdo(1, msg.data)
+        slot = self._slot_of.get(cid)
+        if slot is not None and not msg.is_remote_frame:
+            self._tpdo(slot, msg.data)
         elif msg.is_error_frame or msg.is_remote_frame:
             return
+        elif cid == self._encoder_heartbeat:
+            if len(msg.data) >= 1:
+                self.controller.on_encoder_heartbeat(msg.data[0], self.pacer.now())
         elif cid == self.ids.heartbeat:
             if len(msg.data) >= 1:
                 self.controller.on_heartbeat(msg.data[0], self.pacer.now())
@@ -245,7 +298,8 @@ class Bridge:
         if len(data) != self._tpdo_dlc[slot]:
             self.counters.invalid += 1
             err = PdoFrameError(
-                f"TPDO{slot + 1} (0x{self._tpdo_ids[slot]:03X}) with {len(data)} bytes; the "
+                f"{self.layout.frames[slot].name} (0x{self._tpdo_ids[slot]:03X}) with "
+                f"{len(data)} bytes; the "
                 f"mapping has {self._tpdo_dlc[slot]}; frame ignored",
                 can_id=self._tpdo_ids[slot],
                 length=len(data),
@@ -264,21 +318,8 @@ class Bridge:
     def serving(self) -> Iterator[None]:
         """Feed received frames to canopen from a thread (SDO client/server while not
         cycling); the thread ends when the block ends."""
-        stop = threading.Event()
-
-        def pump() -> None:
-            while not stop.is_set():
-                msg = self.port.recv(0.005)
-                if msg is not None:
-                    self.dispatch(msg)
-
-        thread = threading.Thread(target=pump, name="bridge-service", daemon=True)
-        thread.start()
-        try:
+        with pumping(self.port.recv, self.dispatch, "bridge-service"):
             yield
-        finally:
-            stop.set()
-            thread.join()
 
     # --- start-up ---------------------------------------------------------------------------
     def start(self, configure_drive: bool = True) -> DriveInfo | None:
@@ -286,25 +327,37 @@ class Bridge:
         the controller ready to enable the axis at the first cycle."""
         if configure_drive:
             with self.serving():
-                info = DriveMaster(self.drive, self.config.drive_setup).run()
+                master = DriveMaster(
+                    self.drive,
+                    self.config.drive_setup,
+                    profile=self.config.profile,
+                    load_increments_per_unit=self.scaling.load_increments_per_unit,
+                )
+                info = master.run()
             self.drive_info = info
-            self.scaling = Scaling(self.scaling.load_increments_per_unit, info.rated_torque_nm)
+            self.scaling = info.scaling
             self.controller.set_scaling(self.scaling)
+            self.use_layout(info.layout)
+            self.objects.set_load_scaling(self.scaling.load_increments_per_unit)
+            if info.encoder_id is not None:
+                self.controller.encoder_id = info.encoder_id
+                self._encoder_heartbeat = 0x700 + info.encoder_id
+                self._supervision_ids = self._supervision_ids | {self._encoder_heartbeat}
         self.controller.restart_supervision()
         self.controller.state = BridgeState.ENABLING
         return self.drive_info
 
     # --- the loop ---------------------------------------------------------------------------
     def _receive(self, msg: can.Message) -> None:
-        """A frame received by the loop: a TPDO goes to its slot now (or counts late outside
-        a window); the drive's EMCY and heartbeat are supervision inputs of this very cycle
-        and cheap (a few assignments): handled now; anything else (SDO, NMT, what canopen
-        handles) waits in the service ring for the time between cycles."""
+        """A frame received by the loop: a TPDO of the layout goes to its slot now (or counts
+        late outside a window); the drive's EMCY and heartbeat (and an encoder's heartbeat)
+        are supervision inputs of this very cycle and cheap (a few assignments): handled now;
+        anything else (SDO, NMT, what canopen handles) waits in the service ring for the time
+        between cycles."""
         cid = msg.arbitration_id
-        if cid == self._tpdo_ids[0]:
-            self._tpdo(0, msg.data)
-        elif cid == self._tpdo_ids[1]:
-            self._tpdo(1, msg.data)
+        slot = self._slot_of.get(cid)
+        if slot is not None and not msg.is_remote_frame:
+            self._tpdo(slot, msg.data)
         elif cid in self._supervision_ids:
             try:
                 self.dispatch(msg)
@@ -424,7 +477,8 @@ class Bridge:
         if self.before_sync is not None:
             self.before_sync(k)
         slots = self._slots
-        slots[0] = slots[1] = None
+        for i in range(len(slots)):
+            slots[i] = None
         self._window_open = True
         sync_wall = wall()
         self._send(self._sync_msg)
@@ -436,11 +490,11 @@ class Bridge:
         recv = self._recv
         receive = self._receive
         busy_poll = self.busy_poll
-        # until both TPDOs are in or the window is over; frames already received when it is
+        # until all TPDOs are in or the window is over; frames already received when it is
         # over still count (the loop may have been preempted while they were waiting), at
         # most LATE_READ_FRAMES of them (a flood of frames cannot hold the cycle)
         late_reads = LATE_READ_FRAMES
-        while slots[0] is None or slots[1] is None:
+        while None in slots:
             remaining = end - wall()
             if remaining <= 0.0:
                 late_reads -= 1
@@ -455,12 +509,12 @@ class Bridge:
         inputs_wall = wall()
         counters = self.counters
         counters.cycles += 1
-        first, second = slots
-        if first is None or second is None:
+        lost = slots.count(None)
+        if lost:
             counters.missed_cycles += 1
-            counters.missed += (first is None) + (second is None)
+            counters.missed += lost
         try:
-            self.controller.step(pacer.now(), first, second)
+            self.controller.step(pacer.now(), *slots)
         except Exception as exc:  # a bug must not leave the last set point standing
             timing.errors += 1
             log.exception("controller step failed")

@@ -15,15 +15,18 @@ import logging
 import math
 import struct
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import canopen
 from canopen.sdo import SdoAbortedError
 
 from . import od as objdict
 from .cycle import Command, CycleController
-from .errors import ParameterError, SdoAbort
+from .errors import ParameterError, SdoAbort, StoreError
 from .interpolator import Move
+from .params import BridgeParams, check_field
+from .scaling import Scaling
+from .store import ParameterStore, RawValues
 
 log = logging.getLogger("bridge")
 
@@ -91,6 +94,8 @@ _PARAMS: dict[tuple[int, int], Codec] = {
     (objdict.FE_LIMIT, 0): _real("following_error_limit"),
     (objdict.DISC_LIMIT, 0): _real("discrepancy_limit"),
     (objdict.PDO_TOLERANCE, 0): _u8("pdo_loss_tolerance"),
+    (objdict.POSITION_LIMITS, 1): _real("position_limit_min"),
+    (objdict.POSITION_LIMITS, 2): _real("position_limit_max"),
     (objdict.CYCLE_PERIOD, 0): (
         "cycle_s",
         lambda raw: _U32.unpack(raw)[0] / 1e6,
@@ -112,7 +117,8 @@ class ObjectServer:
     """Binds a :class:`canopen.LocalNode` to a :class:`CycleController` (see module doc).
 
     load_increments_per_unit: scaling of the move objects 2010h-2012h (nm or µrad per load
-    unit). drive_id: the node whose heartbeat 1016h:01 must name.
+    unit). drive_id: the node whose heartbeat 1016h:01 must name. store: where 1010h saves
+    the parameters (None: 1010h:01/1011h:01 read 0 and refuse with 0800 0020).
     """
 
     def __init__(
@@ -121,7 +127,9 @@ class ObjectServer:
         counters: PdoCounters,
         load_increments_per_unit: float,
         drive_id: int,
+        store: ParameterStore | None = None,
     ) -> None:
+        self.store = store
         self.controller = controller
         self.counters = counters
         self._inc_per_unit = load_increments_per_unit
@@ -129,20 +137,28 @@ class ObjectServer:
         self._last_target = 0
         self.writes_refused = 0
 
+    def set_load_scaling(self, load_increments_per_unit: float) -> None:
+        """Scale 2010h-2012h like the load position the start-up found (increments/unit)."""
+        self._inc_per_unit = load_increments_per_unit
+
     def attach(self, node: canopen.LocalNode) -> None:
         node.add_read_callback(self.on_read)
         node.add_write_callback(self.on_write)
 
     # --- reads ---------------------------------------------------------------------------------
     def on_read(self, index: int, subindex: int, od: object = None) -> bytes | None:
-        """Raw value of a bound object, or None for the LocalNode to use the EDS default."""
-        _check_subindex(subindex, od)
+        """Raw value of a bound object, or None for the LocalNode to use the EDS default
+        (``od`` None: a call from the bridge itself, no SDO sub-index check)."""
+        if od is not None:
+            _check_subindex(subindex, od)
         c = self.controller
         codec = _PARAMS.get((index, subindex))
         if codec is not None:
             return codec[2](getattr(c.params, codec[0]))
         if index == objdict.HEARTBEAT_CONSUMER and subindex == 1:
             return _U32.pack((self.drive_id << 16) | c.params.heartbeat_consumer_ms)
+        if index in (objdict.STORE_PARAMETERS, objdict.RESTORE_DEFAULTS) and subindex == 1:
+            return _U32.pack(objdict.STORE_ON_COMMAND if self.store is not None else 0)
         if index == objdict.PDO_COUNTERS and subindex:
             k = self.counters
             values = (k.missed, k.late, k.invalid, k.cycles, k.missed_cycles)
@@ -172,23 +188,7 @@ class ObjectServer:
 
         Lengths are checked by the LocalNode before this is called over SDO."""
         c = self.controller
-        codec = _PARAMS.get((index, subindex))
-        if codec is not None:
-            field, decode, _ = codec
-            self._set(field, decode(raw))
-        elif index == objdict.HEARTBEAT_CONSUMER and subindex == 1:
-            value = _U32.unpack(raw)[0]
-            node, ms = (value >> 16) & 0xFF, value & 0xFFFF
-            if value >> 24 or node != self.drive_id:
-                raise ParameterError(
-                    f"1016h:01 = 0x{value:08X}: must be (drive node-ID {self.drive_id} << 16) "
-                    f"| timeout in ms; bits 24-31 reserved (0)",
-                    field="heartbeat_consumer_ms",
-                    value=value,
-                    abort_code=SdoAbort.VALUE_RANGE,
-                )
-            self._set("heartbeat_consumer_ms", ms)
-        elif index == objdict.TARGET:
+        if index == objdict.TARGET:
             target = _I32.unpack(raw)[0]
             p = c.params
             try:
@@ -202,9 +202,6 @@ class ObjectServer:
                 ) from None
             c.start_move(move)
             self._last_target = target
-        elif index in (objdict.FEED, objdict.ACCEL):
-            field = "feed" if index == objdict.FEED else "accel"
-            self._set(field, _U32.unpack(raw)[0] / self._inc_per_unit)
         elif index == objdict.COMMAND:
             value = _U8.unpack(raw)[0]
             if value not in {int(cmd) for cmd in Command}:
@@ -215,7 +212,107 @@ class ObjectServer:
                     abort_code=SdoAbort.VALUE_RANGE,
                 )
             c.command(Command(value))
+        elif index in (objdict.STORE_PARAMETERS, objdict.RESTORE_DEFAULTS) and subindex == 1:
+            self._store_command(index, _U32.unpack(raw)[0])
+        else:
+            decoded = self.field_value(index, subindex, raw)
+            if decoded is not None:
+                field, value = decoded
+                if self.on_read(index, subindex) == raw:
+                    # the value read back (REAL32 of a double): keep the exact one, so a tool
+                    # restoring what it read changes nothing
+                    value = getattr(c.params, field)
+                self._set(field, value)
         # other writable objects: none (all others are ro/const in the EDS)
+
+    def field_value(self, index: int, subindex: int, raw: bytes) -> tuple[str, object] | None:
+        """The :class:`BridgeParams` field and value a raw parameter write means (None for
+        objects that are not parameters); ParameterError for a malformed 1016h:01."""
+        codec = _PARAMS.get((index, subindex))
+        if codec is not None:
+            field, decode, _ = codec
+            return field, decode(raw)
+        if index == objdict.HEARTBEAT_CONSUMER and subindex == 1:
+            value = _U32.unpack(raw)[0]
+            node, ms = (value >> 16) & 0xFF, value & 0xFFFF
+            if value >> 24 or node != self.drive_id:
+                raise ParameterError(
+                    f"1016h:01 = 0x{value:08X}: must be (drive node-ID {self.drive_id} << 16) "
+                    f"| timeout in ms; bits 24-31 reserved (0)",
+                    field="heartbeat_consumer_ms",
+                    value=value,
+                    abort_code=SdoAbort.VALUE_RANGE,
+                )
+            return "heartbeat_consumer_ms", ms
+        if index in (objdict.FEED, objdict.ACCEL):
+            field = "feed" if index == objdict.FEED else "accel"
+            return field, _U32.unpack(raw)[0] / self._inc_per_unit
+        return None
+
+    # --- 1010h / 1011h: the parameter store ------------------------------------------------
+    def stored_values(self) -> RawValues:
+        """Raw values of the objects 1010h saves (:data:`bridge.od.STORED`)."""
+        values = {}
+        for index, subindex in sorted(objdict.STORED):
+            raw = self.on_read(index, subindex)
+            assert raw is not None, f"{index:04X}h:{subindex:02X} is stored but not bound"
+            values[(index, subindex)] = raw
+        return values
+
+    def _store_command(self, index: int, value: int) -> None:
+        save = index == objdict.STORE_PARAMETERS
+        signature = objdict.SAVE_SIGNATURE if save else objdict.LOAD_SIGNATURE
+        name = "'save' 0x65766173" if save else "'load' 0x64616F6C"
+        if value != signature:
+            raise ParameterError(
+                f"{index:04X}h:01 = 0x{value:08X}: wrong signature; write {name}",
+                field="store" if save else "restore",
+                value=value,
+                abort_code=SdoAbort.NOT_STORED,
+            )
+        if self.store is None:
+            raise ParameterError(
+                f"{index:04X}h:01: this bridge has no parameter store file (BridgeConfig."
+                "store_path / --store)",
+                field="store" if save else "restore",
+                value=value,
+                abort_code=SdoAbort.NOT_STORED,
+            )
+        try:
+            if save:
+                self.store.save(self.stored_values())
+                log.info("parameters stored in %s", self.store.path)
+            else:
+                self.store.clear()
+                log.info("%s removed: defaults at the next start", self.store.path)
+        except OSError as exc:
+            raise ParameterError(
+                f"parameter store {self.store.path}: {exc}",
+                field="store" if save else "restore",
+                value=value,
+                abort_code=SdoAbort.HARDWARE,
+            ) from None
+
+    def apply_stored(self, values: RawValues, where: str) -> BridgeParams:
+        """Parameters with the stored raw ``values`` applied over the current ones, checked
+        together (one :class:`BridgeParams`); StoreError naming ``where`` if refused."""
+        changes: dict[str, object] = {}
+        try:
+            for (index, subindex), raw in sorted(values.items()):
+                what = f"{where}: {index:04X}h:{subindex:02X}"
+                if (index, subindex) not in objdict.STORED:
+                    raise StoreError(f"{what}: not a stored object of this bridge", path=where)
+                size = len(self.on_read(index, subindex) or b"")
+                if len(raw) != size:
+                    raise StoreError(f"{what}: {len(raw)} bytes, expected {size}", path=where)
+                decoded = self.field_value(index, subindex, raw)
+                assert decoded is not None
+                changes[decoded[0]] = decoded[1]
+            for field, value in changes.items():
+                check_field(field, value)
+            return replace(self.controller.params, **changes)
+        except ParameterError as exc:
+            raise StoreError(f"{where}: stored value refused: {exc}", path=where) from None
 
     def _set(self, field: str, value: object) -> None:
         c = self.controller
@@ -246,3 +343,21 @@ def _live_table() -> dict[int, Callable[[ObjectServer, CycleController], bytes]]
 
 
 _LIVE = _live_table()
+
+
+def params_with_store(
+    params: BridgeParams, load_increments_per_unit: float, drive_id: int, store: ParameterStore
+) -> BridgeParams:
+    """``params`` with the store file's values applied, as a bridge built with that store
+    would run (for what must be known before the bridge exists, e.g. the cycle of the pacer).
+    StoreError if the file is malformed or refused."""
+    values = store.load()
+    if values is None:
+        return params
+    server = ObjectServer(
+        CycleController(params, Scaling(load_increments_per_unit, 1.0)),
+        PdoCounters(),
+        load_increments_per_unit,
+        drive_id,
+    )
+    return server.apply_stored(values, str(store.path))

@@ -110,9 +110,10 @@ RO, RW, WO, CONST = Access.RO, Access.RW, Access.WO, Access.CONST
 # --- indices used by the code ----------------------------------------------------------------
 DEVICE_TYPE, ERROR_REGISTER, COB_ID_SYNC, CYCLE_PERIOD = 0x1000, 0x1001, 0x1005, 0x1006
 DEVICE_NAME, HEARTBEAT_CONSUMER, IDENTITY = 0x1008, 0x1016, 0x1018
+STORE_PARAMETERS, RESTORE_DEFAULTS = 0x1010, 0x1011
 KV, REG_ENABLE, BETA_T, WINDOW_N, TV, TF, KR = range(0x2000, 0x2007)
 SPEED_LIMIT, FE_LIMIT, DISC_LIMIT, PDO_TOLERANCE = range(0x2007, 0x200B)
-TARGET, FEED, ACCEL, MOVE_STATUS = range(0x2010, 0x2014)
+TARGET, FEED, ACCEL, MOVE_STATUS, POSITION_LIMITS = range(0x2010, 0x2015)
 COMMAND = 0x2020
 BETA, LAMBDA, FOLLOWING_ERROR, MOTOR_LOAD_DIFF, STATE, STOP_REASON, STOP_MESSAGE = range(
     0x2100, 0x2107
@@ -121,6 +122,14 @@ PDO_COUNTERS, SPEED_SETPOINT, POSITION_REFERENCE, DRIVE_ERROR = range(0x2107, 0x
 
 #: 1005h: bit 30 set = this node produces SYNC, COB-ID 0x080.
 SYNC_COB_ID_VALUE = 0x4000_0080
+#: CiA 301 signatures: "save" written to 1010h, "load" to 1011h (ISO 8859 bytes, LSB first).
+SAVE_SIGNATURE = 0x6576_6173
+LOAD_SIGNATURE = 0x6461_6F6C
+#: Read value of 1010h:01 / 1011h:01: bit 0 = the node saves (restores) on command.
+STORE_ON_COMMAND = 0x0000_0001
+#: Default software position limits (2014h), load units: +-2 m covers the INTEGER32 nm range
+#: of 2010h (+-2.147 m).
+DEFAULT_POSITION_LIMIT = 2.0
 
 OBJECTS: tuple[Entry | Group, ...] = (
     # --- communication profile (CiA 301) -----------------------------------------------------
@@ -169,6 +178,43 @@ OBJECTS: tuple[Entry | Group, ...] = (
                 "ms",
                 "bits 16-23 drive node-ID, bits 0-15 timeout in ms (0: not monitored); "
                 "locked while the axis is enabled",
+            ),
+        ),
+    ),
+    Group(
+        STORE_PARAMETERS,
+        "Store parameters",
+        ObjectKind.ARRAY,
+        (
+            Entry(
+                STORE_PARAMETERS,
+                1,
+                "Save all parameters",
+                U32,
+                RW,
+                STORE_ON_COMMAND,
+                "",
+                "CiA 301: write 0x65766173 ('save') to store the objects marked "
+                "StorageLocation=PERSIST in the store file; other values: 0800 0020; "
+                "read: 1 (saves on command)",
+            ),
+        ),
+    ),
+    Group(
+        RESTORE_DEFAULTS,
+        "Restore default parameters",
+        ObjectKind.ARRAY,
+        (
+            Entry(
+                RESTORE_DEFAULTS,
+                1,
+                "Restore all default parameters",
+                U32,
+                RW,
+                STORE_ON_COMMAND,
+                "",
+                "CiA 301: write 0x64616F6C ('load') to discard the store file; the defaults "
+                "(axis file) apply at the next start; other values: 0800 0020",
             ),
         ),
     ),
@@ -325,6 +371,37 @@ OBJECTS: tuple[Entry | Group, ...] = (
         0xFFFF_FFFF,
     ),
     _var(MOVE_STATUS, "Move status", U8, RO, 0, "", "0: idle (holding), 1: moving"),
+    Group(
+        POSITION_LIMITS,
+        "Software position limit",
+        ObjectKind.RECORD,
+        (
+            Entry(
+                POSITION_LIMITS,
+                1,
+                "Min position limit",
+                R,
+                RW,
+                -DEFAULT_POSITION_LIMIT,
+                "load unit",
+                "like CiA 402 607Dh:01, in m or rad: a move to a target below it is refused "
+                "(0609 0032); the axis is stopped (reason 10) when the load scale is below it "
+                "and no move heads back; [-1000, 1000], below 2014h:02",
+            ),
+            Entry(
+                POSITION_LIMITS,
+                2,
+                "Max position limit",
+                R,
+                RW,
+                DEFAULT_POSITION_LIMIT,
+                "load unit",
+                "like CiA 402 607Dh:02, in m or rad: a move to a target above it is refused "
+                "(0609 0031); the axis is stopped (reason 10) when the load scale is above it "
+                "and no move heads back; [-1000, 1000], above 2014h:01",
+            ),
+        ),
+    ),
     _var(
         COMMAND,
         "Command",
@@ -427,6 +504,21 @@ OBJECTS: tuple[Entry | Group, ...] = (
         "",
         "last EMCY error code of the drive (0: none)",
     ),
+)
+
+
+#: Objects 1010h saves and a start-up loads (StorageLocation=PERSIST in the EDS): the
+#: parameters. Live values, moves (2010h) and commands are not stored (StorageLocation=RAM).
+STORED: frozenset[tuple[int, int]] = frozenset(
+    {
+        (CYCLE_PERIOD, 0),
+        (HEARTBEAT_CONSUMER, 1),
+        *((index, 0) for index in range(KV, PDO_TOLERANCE + 1)),
+        (FEED, 0),
+        (ACCEL, 0),
+        (POSITION_LIMITS, 1),
+        (POSITION_LIMITS, 2),
+    }
 )
 
 

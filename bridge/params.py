@@ -28,6 +28,7 @@ from regulator import (
 )
 
 from .errors import ParameterError, SdoAbort
+from .interpolator import MAX_ABS_TARGET
 from .scaling import INT32_MAX, MOTOR_INCREMENTS_PER_RAD
 
 
@@ -64,6 +65,8 @@ BOUNDS: dict[str, Bound] = {
     "heartbeat_consumer_ms": Bound(0, 65535, "ms"),
     "feed": Bound(0.0, 100.0, "load units/s", low_open=True),
     "accel": Bound(0.0, 1e6, "load units/s^2"),
+    "position_limit_min": Bound(-MAX_ABS_TARGET, MAX_ABS_TARGET, "load units"),
+    "position_limit_max": Bound(-MAX_ABS_TARGET, MAX_ABS_TARGET, "load units"),
 }
 INTEGER_FIELDS = frozenset({"n", "pdo_loss_tolerance", "heartbeat_consumer_ms"})
 BOOL_FIELDS = frozenset({"regulator_enabled"})
@@ -92,6 +95,9 @@ DEFAULT_SPEED_LIMIT_RAD_S = 100.0 * math.pi  # 3000 rpm at the motor
 DEFAULT_PDO_LOSS_TOLERANCE = 5
 DEFAULT_HEARTBEAT_CONSUMER_MS = 250
 DEFAULT_FEED = {AxisKind.LINEAR: 0.05, AxisKind.ROTARY: 0.5}
+#: Software position limits (2014h): +-2 m (the INTEGER32 nm range of 2010h is +-2.147 m) or
+#: +-1000 rad (the interpolator's sanity bound), i.e. no narrower than the objects can express.
+DEFAULT_POSITION_LIMIT = {AxisKind.LINEAR: 2.0, AxisKind.ROTARY: MAX_ABS_TARGET}
 
 
 def _fail(field: str, value: object, code: SdoAbort, allowed: str) -> ParameterError:
@@ -136,7 +142,9 @@ class BridgeParams:
     pdo_loss_tolerance [200Ah]: consecutive cycles with a missing TPDO before stopping.
     heartbeat_consumer_ms [1016h:01]: drive heartbeat timeout, ms, 0 = not monitored.
     feed [2011h]: load units/s, accel [2012h]: load units/s², 0 = speed step, of moves started
-    by the target-position object.
+    by the target-position object. position_limit_min / position_limit_max [2014h:01/02]:
+    software travel limits, load units (like CiA 402 607Dh), min < max: moves to targets
+    outside are refused and an axis outside them is stopped (bridge.cycle).
     """
 
     kv_per_s: float
@@ -154,10 +162,20 @@ class BridgeParams:
     heartbeat_consumer_ms: int = DEFAULT_HEARTBEAT_CONSUMER_MS
     feed: float = DEFAULT_FEED[AxisKind.LINEAR]
     accel: float = 0.0
+    position_limit_min: float = -DEFAULT_POSITION_LIMIT[AxisKind.LINEAR]
+    position_limit_max: float = DEFAULT_POSITION_LIMIT[AxisKind.LINEAR]
 
     def __post_init__(self) -> None:
         for f in fields(self):
             check_field(f.name, getattr(self, f.name))
+        if not self.position_limit_min < self.position_limit_max:
+            raise ParameterError(
+                f"position_limit_min = {self.position_limit_min!r} must be below "
+                f"position_limit_max = {self.position_limit_max!r} (load units)",
+                field="position_limit_min",
+                value=self.position_limit_min,
+                abort_code=SdoAbort.TOO_HIGH,
+            )
         try:
             self.regulator_config()
         except RegulatorConfigError as exc:
@@ -199,6 +217,8 @@ class BridgeParams:
                 DEFAULT_FEED[axis.kind],
                 0.5 * DEFAULT_SPEED_LIMIT_RAD_S / axis.transmission_ratio,
             ),
+            position_limit_min=-DEFAULT_POSITION_LIMIT[axis.kind],
+            position_limit_max=DEFAULT_POSITION_LIMIT[axis.kind],
         )
 
     def regulator_config(self) -> RegulatorConfig:

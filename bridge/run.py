@@ -19,15 +19,20 @@ import can
 
 from plant_sim.axis import AxisConfig
 from regulator import RegulatorConfig
-from virtual_bus import BusConfig, open_bus
+from virtual_bus import BusConfig, bus_load, open_bus
 
 from .busload import layout_load
 from .cycle import BridgeState, Command
+from .errors import BridgeConfigError
 from .interpolator import Move
+from .layout import CycleLayout
 from .node import DEFAULT_OVERRUN_LIMIT, Bridge, BridgeConfig
+from .objects import params_with_store
 from .params import BridgeParams
 from .realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 from .recorder import BusLog, TraceRecorder, log_channel
+from .scaling import LOAD_INCREMENTS_PER_UNIT
+from .store import ParameterStore
 from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
 
 log = logging.getLogger("bridge")
@@ -74,9 +79,41 @@ def params_for(options: RunOptions) -> BridgeParams:
     return BridgeParams.for_axis(axis, reg)
 
 
+def check_bus_load(fraction: float, bitrate: int, cycle_s: float, refuse: bool = True) -> None:
+    """Refuse a layout that does not fit into the cycle at ``bitrate`` (BridgeConfigError,
+    before anything is written to the drive); warn above 80 %. ``refuse=False`` (the check
+    of the layout the start-up built, the drive already enabled): warn in both cases."""
+    text = (
+        f"cyclic PDO traffic is {100 * fraction:.0f} % of the bus at {bitrate} bit/s and "
+        f"{cycle_s * 1e3:.3g} ms (python -m bridge busload)"
+    )
+    if fraction > 1.0:
+        message = f"{text}: it does not fit; use --bitrate 1000000 or a longer cycle"
+        if refuse:
+            raise BridgeConfigError(message)
+        log.error("%s", message)
+        return
+    if fraction > 0.8:
+        log.warning("%s; SDO and heartbeats may delay the RPDO", text)
+
+
+def layout_fraction(layout: CycleLayout, cycle_s: float, bitrate: int) -> float:
+    """Bus load of SYNC + the layout's frames + its RPDO (worst-case stuffing)."""
+    dlcs = [0, *(f.dlc for f in layout.frames), layout.rpdo_dlc]
+    return bus_load(dlcs, cycle_s, bitrate).load_fraction
+
+
 def run_bridge(options: RunOptions) -> RunResult:
     """Run the bridge as described in the module docstring (blocking)."""
     params = params_for(options)
+    store_path = options.bridge.store_path
+    if store_path is not None:  # the stored cycle (1006h) sets the pacer
+        params = params_with_store(
+            params,
+            LOAD_INCREMENTS_PER_UNIT[options.axis.kind],
+            options.bridge.drive_id,
+            ParameterStore(store_path),
+        )
     bus = open_bus(options.bus)  # first: a bus that cannot open is the one thing to say
     try:
         return _run_on(bus, options, params)
@@ -86,14 +123,7 @@ def run_bridge(options: RunOptions) -> RunResult:
 
 def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunResult:
     _, load = layout_load(1, params.cycle_s, options.bus.bitrate)
-    if load.load_fraction > 0.8:
-        log.warning(
-            "cyclic PDO traffic alone is %.0f %% of the bus at %d bit/s and %.3g ms "
-            "(python -m bridge busload); SDO and heartbeats may delay the RPDO",
-            100 * load.load_fraction,
-            options.bus.bitrate,
-            params.cycle_s * 1e3,
-        )
+    check_bus_load(load.load_fraction, options.bus.bitrate, params.cycle_s)
     pacer: Pacer = (
         RealTimePacer(params.cycle_s)
         if options.time_mode is TimeMode.REAL_TIME
@@ -116,14 +146,32 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
         gc_control=GcBetweenCycles() if options.realtime.freeze_gc else None,
         busy_poll=options.realtime.busy_poll,
     )
+    _command_line_over_store(bridge, options)
     try:
-        return _loop(bridge, options, params)
+        return _loop(bridge, options, bridge.controller.params)
     finally:
         bridge.close()
 
 
+def _command_line_over_store(bridge: Bridge, options: RunOptions) -> None:
+    """--no-regulator / --beta-t win over the parameter store (loaded by the bridge)."""
+    c = bridge.controller
+    p = c.params
+    if not options.regulator_enabled:
+        p = p.with_value("regulator_enabled", False)
+    if options.beta_t_rad_s is not None:
+        p = p.with_value("beta_t_rad_s", options.beta_t_rad_s)
+    c.set_params(p)
+
+
 def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResult:
     bridge.start()
+    check_bus_load(
+        layout_fraction(bridge.layout, params.cycle_s, options.bus.bitrate),
+        options.bus.bitrate,
+        params.cycle_s,
+        refuse=False,
+    )
     for line in apply_realtime(options.realtime):  # after the start-up, before the loop
         log.warning("real time: %s", line)
     c = bridge.controller

@@ -12,9 +12,21 @@ import importlib
 import sys
 from typing import NoReturn
 
+from regulator.errors import RegulatorError
+
 from .errors import PlantSimError
 
-COMMANDS = ("paper", "sweep", "bench", "simulate", "identify", "diagnose", "drive")
+COMMANDS = (
+    "paper",
+    "sweep",
+    "bench",
+    "simulate",
+    "identify",
+    "diagnose",
+    "drive",
+    "monitor",
+    "monitor_bench",
+)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -53,6 +65,14 @@ def main(argv: list[str] | None = None) -> int:
     module = modules[args.command]
     try:
         return int(module.run(args))  # type: ignore[attr-defined]
+    except RegulatorError as exc:
+        axis = getattr(args, "axis", None)
+        print(
+            f"python -m plant_sim {args.command}: {axis}: the regulator cannot run on this "
+            f"axis: {exc}",
+            file=sys.stderr,
+        )
+        return 2
     except (PlantSimError, OSError) as exc:
         print(f"python -m plant_sim {args.command}: {exc}", file=sys.stderr)
         return 2

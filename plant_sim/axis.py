@@ -218,6 +218,16 @@ class AxisConfig:
 
     def __post_init__(self) -> None:
         _check_range("axis.transmission_ratio", self.transmission_ratio, low=0.0, low_open=True)
+        try:  # k_r² in J_l' = J_l / k_r² (section III) must stay a finite float
+            reflected = self.mechanics.load_mass / self.transmission_ratio**2
+        except OverflowError:
+            reflected = 0.0
+        if not (math.isfinite(reflected) and reflected > 0.0):
+            raise AxisFileError(
+                f"axis.transmission_ratio = {self.transmission_ratio!r}: the reflected load "
+                f"inertia J_l / k_r² = {self.mechanics.load_mass!r} / k_r² is not a finite "
+                "number > 0 in floating point; use a ratio whose square is representable"
+            )
 
     # --- derived quantities (paper section III) -------------------------------------------
     @property

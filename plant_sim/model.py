@@ -32,12 +32,26 @@ MONITOR_N = DEFAULT_N
 MAX_OMEGA_DT = 0.1
 
 
+#: Most mechanics substeps per speed cycle (also the limit of ``KernelOptions.substeps``).
+MAX_SUBSTEPS = 10_000
+
+
 def default_substeps(axis: AxisConfig) -> int:
-    """Substeps per speed cycle so that ω_r·dt <= MAX_OMEGA_DT (1 for a rigid axis)."""
+    """Substeps per speed cycle so that ω_r·dt <= MAX_OMEGA_DT (1 for a rigid axis).
+    Raises ScenarioError when that needs more than :data:`MAX_SUBSTEPS` (an axis too stiff
+    for its speed cycle to simulate, e.g. an extreme transmission ratio)."""
     wr = axis.resonance
     if wr is None:
         return 1
-    return max(1, math.ceil(wr * axis.control.speed_cycle / MAX_OMEGA_DT))
+    need = wr * axis.control.speed_cycle / MAX_OMEGA_DT
+    if not need <= MAX_SUBSTEPS:
+        raise ScenarioError(
+            f"resonance omega_r = {wr:.6g} rad/s (eq. 4) needs {need:.3g} mechanics substeps "
+            f"per speed cycle of {axis.control.speed_cycle:g} s (omega_r*dt <= {MAX_OMEGA_DT}); "
+            f"at most {MAX_SUBSTEPS} are simulated: check transmission_ratio, masses and "
+            "antiresonance of the axis file"
+        )
+    return max(1, math.ceil(need))
 
 
 @dataclass(frozen=True)
@@ -53,7 +67,7 @@ class KernelOptions:
     setpoint_delay_cycles: int = 0
 
     def __post_init__(self) -> None:
-        if self.substeps is not None and not 1 <= self.substeps <= 10_000:
+        if self.substeps is not None and not 1 <= self.substeps <= MAX_SUBSTEPS:
             raise ScenarioError(f"substeps = {self.substeps}: allowed 1..10000")
         if self.setpoint_delay_cycles not in (0, 1):
             raise ScenarioError(

@@ -6,10 +6,17 @@ one-cycle set point delay; :func:`run_loop` closes the loop with a CycleControll
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from collections.abc import Callable, Iterator
 
+import can
+import canopen
 import numpy as np
+import pytest
+from canopen.sdo import SdoAbortedError
 
+from bridge import od as objdict
 from bridge.cycle import CycleController
 from bridge.layout import RPDO1_STRUCT, TPDO1_STRUCT, TPDO2_STRUCT
 from bridge.params import BridgeParams
@@ -72,3 +79,26 @@ def run_loop(c: CycleController, drive: PayloadDrive, refs: References) -> dict[
         out["omega_r"][k] = c.omega_r
         drive.advance(bytes(rpdo), refs.disturbance_nm[k])
     return out
+
+
+@contextlib.contextmanager
+def sdo_tool(bus: can.BusABC) -> Iterator[canopen.RemoteNode]:
+    """A CANopen tool on ``bus``: python-canopen's RemoteNode of the bridge with its EDS,
+    fed by a python-can Notifier."""
+    network = canopen.Network(bus)
+    notifier = can.Notifier(bus, network.listeners, 0.02)
+    network.notifier = notifier
+    node = canopen.RemoteNode(objdict.DEFAULT_NODE_ID, objdict.load_od())
+    network.add_node(node)
+    node.sdo.RESPONSE_TIMEOUT = 2.0
+    try:
+        yield node
+    finally:
+        notifier.stop(2.0)
+
+
+def abort_code(call: Callable[[], object]) -> int:
+    """The SDO abort code ``call`` fails with."""
+    with pytest.raises(SdoAbortedError) as info:
+        call()
+    return info.value.code

@@ -7,22 +7,29 @@
 * ``bus_mode``: each bus mode (``virtual``; ``socketcan`` on vcan0, marked ``vcan``);
   ``bus_pair``: two connected buses of that mode, shut down at teardown.
 * Tests marked ``vcan`` are skipped where vcan0 is not available.
+* ``private_netns``: a private network namespace (``virtual_bus.netns``) created for the test
+  and removed after it; skips with the reason where ``ip netns`` is not allowed (not root, no
+  iproute2). ``subprocess_env``: the environment for a Python subprocess that imports this
+  checkout's packages.
 """
 
 from __future__ import annotations
 
 import functools
+import os
 import threading
 import time
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import can
 import can.interfaces.virtual as can_virtual
 import pytest
 
 from virtual_bus import BusConfig, Interface, available_modes, open_bus, resolve
+from virtual_bus.netns import NetworkNamespace, netns_problem
 
 pytest_plugins = ["pytester"]
 
@@ -149,3 +156,27 @@ def bus_pair(bus_mode: Interface) -> Iterator[tuple[can.BusABC, can.BusABC]]:
     finally:
         first.shutdown()
         second.shutdown()
+
+
+@pytest.fixture(scope="session")
+def netns_skip_reason() -> str | None:
+    """Why this host does not let the tests create a network namespace (None: it does)."""
+    problem = netns_problem()
+    return None if problem is None else f"cannot create a network namespace here: {problem}"
+
+
+@pytest.fixture
+def private_netns(netns_skip_reason: str | None) -> Iterator[NetworkNamespace]:
+    """A private network namespace (only ``lo``, IPv4 multicast routed to it), removed at
+    teardown (stop the processes you started in it first)."""
+    if netns_skip_reason is not None:
+        pytest.skip(netns_skip_reason)
+    with NetworkNamespace.create() as ns:
+        yield ns
+    assert not ns.exists()
+
+
+@pytest.fixture(scope="session")
+def subprocess_env() -> dict[str, str]:
+    """os.environ with PYTHONPATH = this checkout (a subprocess imports these packages)."""
+    return {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}

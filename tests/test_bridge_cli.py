@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import struct
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,7 +21,10 @@ from virtual_bus import BusConfig, Interface, open_bus
 AXIS_FILE = "config/paper_axis.toml"
 
 
-@pytest.mark.parametrize("command", [[], ["run"], ["demo"], ["busload"], ["bench"], ["eds"]])
+@pytest.mark.parametrize(
+    "command",
+    [[], ["run"], ["demo"], ["busload"], ["bench"], ["eds"], ["config"], ["config", "load"]],
+)
 def test_help(command: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as info:
         main([*command, "--help"])
@@ -59,12 +63,29 @@ RUN = ["run", "--interface", "virtual", "--channel", "nobody-here", "--axis", AX
             "not allowed",
         ),
         ([*RUN, "--bitrate", "100000", "--seconds", "1"], "not a CiA 301 bit rate"),
+        (
+            [
+                "run",
+                "--interface",
+                "kvaser",
+                "--channel",
+                "0",
+                "--axis",
+                AXIS_FILE,
+                "--seconds",
+                "1",
+            ],
+            "cannot open interface 'kvaser'",
+        ),
         ([*RUN, "--node-id", "2", "--drive-id", "2", "--seconds", "1"], "different node-IDs"),
         (["busload", "--bitrate", "100000"], "not a CiA 301 bit rate"),
         (["busload", "--axes", "0"], "must be >= 1"),
         (["busload", "--cycle-us", "abc"], "not a number"),
         (["demo"], "--out"),
         (["bench", "--skip-lockstep", "--skip-realtime"], "nothing to run"),
+        (["config", "get", "--interface", "virtual", "--channel", "x", "2000h"], "--node-id"),
+        (["config", "fly"], "invalid choice"),
+        ([*RUN, "--seconds", "1", "--store", "/nonexistent-dir/s.json"], "nonexistent"),
     ],
 )
 def test_bad_arguments_exit_2_with_one_line(
@@ -82,10 +103,12 @@ def test_bad_arguments_exit_2_with_one_line(
 
 def test_busload_of_one_axis(capsys: pytest.CaptureFixture[str]) -> None:
     # Davis et al. worst case: SYNC 55 bits, 8-byte TPDOs 135, 6-byte RPDO 115 = 440 bits
-    assert main(["busload"]) == 0
+    assert main(["busload", "--bitrate", "500000"]) == 0
     out = capsys.readouterr().out
     assert "total 440 bits = 880.0 us per cycle" in out
     assert "bus load 88.0 % (fits)" in out
+    assert main(["busload"]) == 0  # the default is 1 Mbit/s
+    assert "bus load 44.0 % (fits)" in capsys.readouterr().out
     assert main(["busload", "--bitrate", "1000000", "--axes", "3"]) == 0
     out = capsys.readouterr().out
     assert "total 1210 bits" in out and "does NOT fit" in out
@@ -208,3 +231,40 @@ def test_demo_writes_the_paper_outputs_and_reproduces_the_offline_run(
         if f.arbitration_id == 0x080
     )
     assert syncs == 7000
+
+
+def _store(path: Path, objects: dict[str, str]) -> Path:
+    doc = {"format": "backlash-bridge parameter store", "version": 1, "objects": objects}
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_run_applies_the_parameter_store(
+    drive_on_virtual_bus: tuple[str, SimulatedDrive],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A store with a 0.1 mm following-error limit (2008h): the 50 mm/s move (2 mm of
+    following error, eq. 1) is stopped -- the stored value, not the axis file's 5 mm."""
+    channel, _ = drive_on_virtual_bus
+    store = _store(tmp_path / "s.json", {"2008h:00": struct.pack("<f", 1e-4).hex()})
+    argv = [
+        *RUN[:4],
+        channel,
+        *RUN[5:],
+        "--move",
+        "target=0.01,feed=0.05",
+        "--clock",
+        "lockstep",
+        "--store",
+        str(store),
+    ]
+    assert main(argv) == 1
+    assert "2008h = 0.0001" in capsys.readouterr().out
+
+
+def test_run_refuses_a_store_it_would_refuse(tmp_path: Path, capsys) -> None:
+    store = _store(tmp_path / "s.json", {"2000h:00": struct.pack("<f", 5000.0).hex()})
+    assert main([*RUN, "--seconds", "1", "--store", str(store)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "kv_per_s = 5000.0: too high" in err

@@ -14,9 +14,9 @@ from collections.abc import Iterator
 import can
 import canopen
 import pytest
+from bridge_helpers import abort_code, sdo_tool  # tests/ helper module
 from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary import datatypes as dt
-from canopen.sdo import SdoAbortedError
 
 from bridge import od as objdict
 from bridge.cycle import BridgeState, Command
@@ -62,16 +62,8 @@ def bridge(bus_pair: tuple[can.BusABC, can.BusABC]) -> Iterator[Bridge]:
 
 @pytest.fixture
 def tool(bus_pair: tuple[can.BusABC, can.BusABC]) -> Iterator[canopen.RemoteNode]:
-    network = canopen.Network(bus_pair[1])
-    notifier = can.Notifier(bus_pair[1], network.listeners, 0.02)
-    network.notifier = notifier
-    node = canopen.RemoteNode(objdict.DEFAULT_NODE_ID, objdict.load_od())
-    network.add_node(node)
-    node.sdo.RESPONSE_TIMEOUT = 2.0
-    try:
+    with sdo_tool(bus_pair[1]) as node:
         yield node
-    finally:
-        notifier.stop(2.0)
 
 
 def enter_running(b: Bridge) -> None:
@@ -80,12 +72,6 @@ def enter_running(b: Bridge) -> None:
     b.controller.command(Command.ENABLE)
     b.controller.step(0.0, TPDO1_STRUCT.pack(0, 0), TPDO2_STRUCT.pack(0x0027, 0, 0))
     assert b.controller.state is BridgeState.RUNNING
-
-
-def abort_code(call: object) -> int:
-    with pytest.raises(SdoAbortedError) as info:
-        call()  # type: ignore[operator]
-    return info.value.code
 
 
 # --- the file -------------------------------------------------------------------------------
@@ -129,6 +115,10 @@ def test_every_declared_object_behaves_in_the_running_node(
             assert abort_code(lambda i=index, s=sub, r=raw: tool.sdo.download(i, s, r)) == (
                 0x0601_0002
             ), where
+        elif index in (objdict.STORE_PARAMETERS, objdict.RESTORE_DEFAULTS):
+            # CiA 301: only the signature is accepted (tests/test_bridge_store.py)
+            code = abort_code(lambda i=index, s=sub, r=raw: tool.sdo.download(i, s, r))
+            assert code == SdoAbort.NOT_STORED, where
         elif index != objdict.TARGET:  # writing a target starts a move (below)
             tool.sdo.download(index, sub, raw)  # the current value back: accepted
             assert tool.sdo.upload(index, sub) == raw, where

@@ -8,7 +8,7 @@ import can
 import canopen
 import pytest
 
-from bridge.errors import BridgeConfigError, DriveSetupError, DriveTimeoutError, SdoAbort
+from bridge.errors import BridgeConfigError, DriveSetupError, DriveTimeoutError
 from bridge.master import DriveSetup
 from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
@@ -102,9 +102,10 @@ def test_start_up_names_the_object_the_device_refuses(
     bridge = _bridge(bus_pair[0])
     with pytest.raises(DriveSetupError) as info:
         bridge.start()
-    assert (info.value.index, info.value.subindex) == (0x1800, 1)
-    assert info.value.abort_code == SdoAbort.NO_OBJECT
-    assert "1800h:01" in str(info.value) and "TPDO1" in str(info.value)
+    # the start-up reads before it writes: the first missing CiA 402 object is named
+    assert (info.value.index, info.value.subindex) == (0x6040, 0)
+    assert "6040h:00 missing: not a CiA 402 drive" in str(info.value)
+    assert other_device.data_store == {}  # nothing written
     bridge.close()
 
 
@@ -112,6 +113,6 @@ def test_start_up_without_a_drive_times_out(bus_pair: tuple[can.BusABC, can.BusA
     bridge = _bridge(bus_pair[0], drive_id=9)
     with pytest.raises(DriveTimeoutError) as info:
         bridge.start()
-    assert info.value.index == 0x1800 and info.value.abort_code is None
+    assert info.value.index == 0x1000 and info.value.abort_code is None
     assert isinstance(info.value, TimeoutError)
     bridge.close()

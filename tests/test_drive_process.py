@@ -4,7 +4,6 @@ python canopen's own master: in-process on ``virtual`` and vcan0, and as a secon
 
 from __future__ import annotations
 
-import os
 import signal
 import sys
 import threading
@@ -22,7 +21,7 @@ from plant_sim.drive import State402
 from plant_sim.drive.node import NmtState
 from plant_sim.drive.process import DriveProcessConfig, serve
 from virtual_bus import BusConfig, Interface, open_bus
-from virtual_bus.netns import UDP_GROUP, NetworkNamespace, netns_problem
+from virtual_bus.netns import UDP_GROUP, NetworkNamespace
 
 ROOT = Path(__file__).resolve().parents[1]
 AXIS_FILE = ROOT / "config" / "paper_axis.toml"
@@ -178,33 +177,12 @@ def test_serve_result_names_the_end_state() -> None:
 
 
 # --- two processes: udp_multicast in a private network namespace -----------------------------
-@pytest.fixture(scope="module")
-def netns_reason() -> str | None:
-    return netns_problem()
-
-
-@pytest.fixture
-def namespace(netns_reason: str | None) -> Iterator[NetworkNamespace]:
-    if netns_reason is not None:
-        pytest.skip(f"cannot create a network namespace here: {netns_reason}")
-    with NetworkNamespace.create() as ns:
-        yield ns
-    assert not ns.exists()
-
-
 def _python(*args: str) -> list[str]:
     return [sys.executable, *args]
 
 
-def _env(**extra: str) -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(ROOT)
-    env.update(extra)
-    return env
-
-
 def test_drive_process_and_canopen_master_over_udp_in_a_namespace(
-    namespace: NetworkNamespace, tmp_path: Path
+    private_netns: NetworkNamespace, tmp_path: Path, subprocess_env: dict[str, str]
 ) -> None:
     """The drive command in one process, python canopen's master in another (a script run
     in the namespace), udp_multicast between them; SIGTERM ends the drive with exit 0 and
@@ -212,12 +190,12 @@ def test_drive_process_and_canopen_master_over_udp_in_a_namespace(
     master's first SDO right after the boot-up still gets its answer within 0.3 s."""
     script = tmp_path / "master.py"
     script.write_text(MASTER_SCRIPT)
-    env = _env(NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
-    master = namespace.popen(_python(str(script), str(EDS)), env=_env())
+    env = {**subprocess_env, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
+    master = private_netns.popen(_python(str(script), str(EDS)), env=subprocess_env)
     try:
         assert master.stdout is not None
         assert master.stdout.readline().strip() == "listening"
-        drive = namespace.popen(
+        drive = private_netns.popen(
             _python(
                 "-m", "plant_sim", "drive", "--interface", "udp_multicast", "--axis", str(AXIS_FILE)
             ),

@@ -7,7 +7,6 @@ python-can's ``can.LogReader`` and, where installed, converted by can-utils' ``l
 
 from __future__ import annotations
 
-import os
 import selectors
 import shutil
 import signal
@@ -27,7 +26,7 @@ from bridge.__main__ import main as bridge_main
 from plant_sim.axis import load_axis
 from plant_sim.drive.process import DriveProcessConfig, serve
 from virtual_bus import BusConfig, Interface, open_bus
-from virtual_bus.netns import UDP_GROUP, NetworkNamespace, netns_problem
+from virtual_bus.netns import UDP_GROUP, NetworkNamespace
 
 ROOT = Path(__file__).resolve().parents[1]
 AXIS_FILE = ROOT / "config" / "paper_axis.toml"
@@ -159,24 +158,6 @@ def test_bus_log_converts_with_can_utils(served: BusConfig, tmp_path: Path) -> N
 
 
 # --- two processes: udp_multicast in a private network namespace -----------------------------
-@pytest.fixture(scope="module")
-def netns_reason() -> str | None:
-    return netns_problem()
-
-
-@pytest.fixture
-def namespace(netns_reason: str | None) -> Iterator[NetworkNamespace]:
-    if netns_reason is not None:
-        pytest.skip(f"cannot create a network namespace here: {netns_reason}")
-    with NetworkNamespace.create() as ns:
-        yield ns
-    assert not ns.exists()
-
-
-def _env() -> dict[str, str]:
-    return {**os.environ, "PYTHONPATH": str(ROOT)}
-
-
 def _readline(proc: subprocess.Popen[str], timeout_s: float) -> str:
     """The next stdout line of ``proc`` within ``timeout_s`` ("" if none)."""
     assert proc.stdout is not None
@@ -201,12 +182,12 @@ finally:
 
 
 def test_drive_and_bridge_as_two_processes_over_udp(
-    namespace: NetworkNamespace, tmp_path: Path
+    private_netns: NetworkNamespace, tmp_path: Path, subprocess_env: dict[str, str]
 ) -> None:
     """Drive process, ``bridge run`` process, then a python canopen master process; SIGTERM
     ends the drive with exit 0 and one line."""
     log, trace = tmp_path / "bus.log", tmp_path / "trace.csv"
-    drive = namespace.popen(
+    drive = private_netns.popen(
         [
             sys.executable,
             "-m",
@@ -217,21 +198,23 @@ def test_drive_and_bridge_as_two_processes_over_udp(
             "--axis",
             str(AXIS_FILE),
         ],
-        env=_env(),
+        env=subprocess_env,
     )
     try:
         line = _readline(drive, BOOT_TIMEOUT_S)
         assert line.startswith("drive 2: boot-up sent on udp_multicast group"), line
         started = time.time()
         argv = _bridge_argv("udp_multicast", UDP_GROUP, log, trace)
-        run = namespace.run([sys.executable, "-m", "bridge", *argv], timeout_s=300, env=_env())
+        run = private_netns.run(
+            [sys.executable, "-m", "bridge", *argv], timeout_s=300, env=subprocess_env
+        )
         assert run.returncode == 0, run.stderr
         assert "state DISABLED; missed TPDOs 0" in run.stdout
         script = tmp_path / "reader.py"
         script.write_text(READER)
         tests_dir = str(Path(__file__).parent)
-        reader = namespace.run(
-            [sys.executable, str(script), str(EDS), tests_dir], timeout_s=60, env=_env()
+        reader = private_netns.run(
+            [sys.executable, str(script), str(EDS), tests_dir], timeout_s=60, env=subprocess_env
         )
         assert reader.returncode == 0, reader.stderr
         import json

@@ -101,7 +101,9 @@ class ServoAxis:
         rated_mnm = round(self.config.rated_torque_nm * 1000)
         t.set_default(O.RATED_TORQUE, rated_mnm)
         limit = self.axis.control.torque_limit
-        max_permille = 0xFFFF if limit is None else min(0xFFFF, round(1e6 * limit / rated_mnm))
+        # 6072h is UNSIGNED16: a larger (or no) axis limit leaves 0xFFFF ‰ of 6076h
+        permille = math.inf if limit is None else 1e6 * limit / rated_mnm
+        max_permille = round(permille) if permille < 0xFFFF else 0xFFFF
         t.set_default(O.MAX_TORQUE, max_permille)
         try:
             value, index = O.interpolation_period(self.axis.control.position_cycle)

@@ -1,0 +1,496 @@
+"""From what a drive reports to the bridge's layout, mode and scaling (pure, no bus).
+
+:class:`DriveFacts` is what the start-up read over SDO (:meth:`bridge.master.DriveMaster.
+read_facts`); :func:`plan` turns facts and a :class:`~bridge.profile.DriveProfile` into a
+:class:`Plan`: which drive TPDOs carry which objects (first fit in the order of
+:data:`TPDO_ITEMS`, at most 64 bits and the drive's number of mapping entries per PDO),
+the velocity mode (CiA 402 6060h), the scaling. Whatever is missing and needed raises
+:class:`~bridge.errors.DriveSetupError` with one line naming the object and what to
+configure instead -- before anything has been written to the drive.
+
+The contract's drive (docs/canopen_layout.md, identity 1018h:01 = 0, :02 = 402h) gets the
+contract's layout and scaling.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+from .errors import DriveSetupError
+from .layout import CycleLayout, MappedObject, RxFrame, Signal, struct_code
+from .profile import OBJECT_TYPES, DriveProfile, LoadSource, ModeChoice, ObjectKey, format_key
+from .scaling import MOTOR_INCREMENTS_PER_REV, Scaling
+
+log = logging.getLogger("bridge")
+
+#: 1018h:01/:02 of the contract's (simulated) drive: its scaling is the contract's.
+CONTRACT_IDENTITY = (0x0000_0000, 0x0000_0402)
+#: 6502h bits (CiA 402): profile velocity, cyclic synchronous velocity.
+PV_BIT = 1 << 2
+CSV_BIT = 1 << 8
+#: CiA 406 encoder: position value (UNSIGNED32, steps; decoded as two's complement).
+ENCODER_POSITION: ObjectKey = (0x6004, 0)
+
+
+class VelocityMode(IntEnum):
+    """6060h values the bridge runs a drive in."""
+
+    PROFILE_VELOCITY = 3
+    CYCLIC_SYNCHRONOUS_VELOCITY = 9
+
+
+@dataclass(frozen=True)
+class PdoFacts:
+    """One PDO of the drive: number, COB-ID (1800h+n-1:01 / 1400h+n-1:01), transmission
+    type, how many mapping entries the mapping record has."""
+
+    number: int
+    cob_id: int
+    transmission_type: int | None
+    entries: int
+
+
+@dataclass(frozen=True)
+class DriveFacts:
+    """What the start-up read from the drive. ``objects``: candidate objects present, with
+    their raw value where readable (b"" when present but without a value)."""
+
+    device_type: int | None
+    vendor_id: int | None
+    product_code: int | None
+    supported_modes: int | None
+    objects: dict[ObjectKey, bytes] = field(default_factory=dict)
+    tpdos: tuple[PdoFacts, ...] = ()
+    rpdos: tuple[PdoFacts, ...] = ()
+
+    def has(self, key: ObjectKey) -> bool:
+        return key in self.objects
+
+    def u32(self, key: ObjectKey) -> int | None:
+        raw = self.objects.get(key)
+        return int.from_bytes(raw[:4], "little") if raw and len(raw) >= 4 else None
+
+    def ratio(self, index: int) -> tuple[int, int] | None:
+        """Sub 1 / sub 2 of a factor object (608Fh, 6091h, 6092h, 6093h, ...) if both read."""
+        num, den = self.u32((index, 1)), self.u32((index, 2))
+        return None if num is None or den is None or den == 0 else (num, den)
+
+    @property
+    def contract_drive(self) -> bool:
+        return (self.vendor_id, self.product_code) == CONTRACT_IDENTITY
+
+
+@dataclass(frozen=True)
+class Item:
+    """An object to map in a drive TPDO and the signal it carries."""
+
+    signal: Signal
+    key: ObjectKey
+    type_name: str  # OBJECT_TYPES key
+
+    @property
+    def bits(self) -> int:
+        return OBJECT_TYPES[self.type_name][0]
+
+    @property
+    def code(self) -> str:
+        return struct_code(*OBJECT_TYPES[self.type_name])
+
+
+@dataclass(frozen=True)
+class PdoPlan:
+    number: int
+    cob_id: int
+    transmit: bool
+    transmission_type: int
+    items: tuple[Item, ...]
+
+    @property
+    def mapping(self) -> tuple[MappedObject, ...]:
+        return tuple(MappedObject(i.key[0], i.key[1], i.bits) for i in self.items)
+
+    @property
+    def comm_index(self) -> int:
+        return (0x1800 if self.transmit else 0x1400) + self.number - 1
+
+    @property
+    def mapping_index(self) -> int:
+        return (0x1A00 if self.transmit else 0x1600) + self.number - 1
+
+    @property
+    def name(self) -> str:
+        return f"{'TPDO' if self.transmit else 'RPDO'}{self.number}"
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The start-up's decisions: PDOs to write, mode, scaling, load source, layout."""
+
+    tpdos: tuple[PdoPlan, ...]
+    rpdo: PdoPlan
+    mode: VelocityMode
+    scaling: Scaling
+    load_source: LoadSource
+    encoder_id: int | None
+    rated_torque_mnm: int | None
+    layout: CycleLayout
+    notes: tuple[str, ...]
+
+
+def _fail(message: str, key: ObjectKey | None = None) -> DriveSetupError:
+    return DriveSetupError(
+        message, index=None if key is None else key[0], subindex=None if key is None else key[1]
+    )
+
+
+# --- mode ----------------------------------------------------------------------------------------
+def choose_mode(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> VelocityMode:
+    """CSV when 6502h lists it (or the profile asks for it), else profile velocity."""
+    modes = facts.supported_modes
+    where = f"drive {drive_id}"
+    if profile.mode is ModeChoice.CSV:
+        if modes is not None and not modes & CSV_BIT:
+            raise _fail(
+                f"{where}: 6502h = 0x{modes:08X} does not list cyclic synchronous velocity "
+                '(bit 8); set mode.mode = "pv" (profile velocity) in the drive profile',
+                (0x6502, 0),
+            )
+        return VelocityMode.CYCLIC_SYNCHRONOUS_VELOCITY
+    if profile.mode is ModeChoice.PV:
+        if modes is not None and not modes & PV_BIT:
+            raise _fail(
+                f"{where}: 6502h = 0x{modes:08X} does not list profile velocity (bit 2)",
+                (0x6502, 0),
+            )
+        return VelocityMode.PROFILE_VELOCITY
+    if modes is None:
+        raise _fail(
+            f'{where}: 6502h supported drive modes not readable; set mode.mode = "csv" or '
+            '"pv" in the drive profile',
+            (0x6502, 0),
+        )
+    if modes & CSV_BIT:
+        return VelocityMode.CYCLIC_SYNCHRONOUS_VELOCITY
+    if modes & PV_BIT:
+        return VelocityMode.PROFILE_VELOCITY
+    raise _fail(
+        f"{where}: 6502h = 0x{modes:08X} lists neither cyclic synchronous velocity (bit 8) nor "
+        "profile velocity (bit 2): the bridge needs one of them",
+        (0x6502, 0),
+    )
+
+
+# --- load position -------------------------------------------------------------------------------
+def load_item(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> Item | None:
+    """The drive object carrying the load position (None: encoder node or motor feedback)."""
+    source = profile.load_source
+    sub1, var = (0x60E4, 1), (0x60E4, 0)
+    is_var = len(facts.objects.get(var, b"")) == 4  # sub 0 of an array is one byte
+    if source is LoadSource.AUTO:
+        if facts.has(sub1) and not is_var and profile.may_map(sub1):
+            return Item(Signal.LOAD_POSITION, sub1, "i32")
+        if is_var and profile.may_map(var):
+            return Item(Signal.LOAD_POSITION, var, "i32")
+        return None
+    if source is LoadSource.ADDITIONAL_SUB1:
+        if not facts.has(sub1) or is_var:
+            raise _fail(
+                f'drive {drive_id}: load.source = "60E4h:01" but the drive has no 60E4h:01 '
+                '(try "60E4h:00", "vendor" with load.object, "encoder" or "motor")',
+                sub1,
+            )
+        item = Item(Signal.LOAD_POSITION, sub1, "i32")
+    elif source is LoadSource.ADDITIONAL_VAR:
+        if not is_var:
+            raise _fail(
+                f'drive {drive_id}: load.source = "60E4h:00" but 60E4h is not a plain '
+                'INTEGER32 variable there (try "60E4h:01", "vendor", "encoder" or "motor")',
+                var,
+            )
+        item = Item(Signal.LOAD_POSITION, var, "i32")
+    elif source is LoadSource.VENDOR:
+        key = profile.load_object
+        assert key is not None
+        if not facts.has(key):
+            raise _fail(
+                f"drive {drive_id}: load.object {format_key(key)} does not exist on the drive",
+                key,
+            )
+        item = Item(Signal.LOAD_POSITION, key, profile.load_object_type)
+    else:
+        return None
+    if not profile.may_map(item.key):
+        raise _fail(
+            f"drive {drive_id}: load position {format_key(item.key)} cannot be mapped into a "
+            'TPDO (not PDO-mappable); choose another load.source ("encoder", "motor", ...)',
+            item.key,
+        )
+    return item
+
+
+# --- PDO packing ---------------------------------------------------------------------------------
+def tpdo_items(facts: DriveFacts, profile: DriveProfile, load: Item | None) -> list[Item]:
+    """Objects to map, in packing order; optional ones the drive lacks are left out."""
+    items = [Item(Signal.MOTOR_POSITION, (0x6064, 0), "i32")]
+    if load is not None:
+        items.append(load)
+    items.append(Item(Signal.STATUSWORD, (0x6041, 0), "u16"))
+    for signal, key, type_name in (
+        (Signal.TORQUE, (0x6077, 0), "i16"),
+        (Signal.MOTOR_VELOCITY, (0x606C, 0), "i32"),
+    ):
+        if facts.has(key) and profile.may_map(key):
+            items.append(Item(signal, key, type_name))
+    return items
+
+
+def pack(
+    items: list[Item], pdos: list[PdoFacts], profile: DriveProfile, drive_id: int
+) -> list[tuple[PdoFacts, list[Item]]]:
+    """First fit of ``items`` into ``pdos`` (64 bits and the mapping entries of each)."""
+    bins: list[tuple[PdoFacts, list[Item]]] = [(p, []) for p in pdos]
+    for item in items:
+        for pdo, content in bins:
+            room = min(pdo.entries, profile.max_entries)
+            if len(content) < room and sum(i.bits for i in content) + item.bits <= 64:
+                content.append(item)
+                break
+        else:
+            if item.signal in (Signal.MOTOR_POSITION, Signal.STATUSWORD, Signal.LOAD_POSITION):
+                raise _fail(
+                    f"drive {drive_id}: {format_key(item.key)} ({item.signal.name.lower()}) "
+                    f"does not fit into TPDOs {[p.number for p in pdos]} (64 bits, "
+                    f"{profile.max_entries} entries each); give more in pdo.tpdos",
+                    item.key,
+                )
+            log.warning(
+                "drive %d: no TPDO room for %s (%s): left out",
+                drive_id,
+                format_key(item.key),
+                item.signal.name.lower(),
+            )
+    return [(p, c) for p, c in bins if c]
+
+
+def _usable_pdos(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> list[PdoFacts]:
+    have = {p.number: p for p in facts.tpdos}
+    usable = [have[n] for n in profile.tpdos if n in have and have[n].entries > 0]
+    if not usable:
+        raise _fail(
+            f"drive {drive_id}: none of the TPDOs {list(profile.tpdos)} exists (1800h+n-1); "
+            "set pdo.tpdos in the drive profile",
+            (0x1800, 1),
+        )
+    return usable
+
+
+# --- scaling -------------------------------------------------------------------------------------
+def position_units_per_rev(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> float:
+    """6064h units per motor revolution: profile, else 6092h/6091h (user units), else 608Fh
+    (increments), else the contract's 2^20 for the contract's drive."""
+    if profile.position_increments_per_rev is not None:
+        return float(profile.position_increments_per_rev)
+    feed, gear = facts.ratio(0x6092), facts.ratio(0x6091)
+    if feed is not None:
+        # CiA 402 factor group: position unit = feed / (feed constant) per driving shaft rev
+        g_motor, g_shaft = gear or (1, 1)
+        return feed[0] / feed[1] * g_shaft / g_motor
+    resolution = facts.ratio(0x608F)
+    if resolution is not None:
+        return resolution[0] / resolution[1]
+    factor = facts.ratio(0x6093)
+    if factor is not None and factor != (1, 1):
+        raise _fail(
+            f"drive {drive_id}: 6093h position factor {factor[0]}/{factor[1]} and no 608Fh: "
+            "set scaling.position_increments_per_rev in the drive profile",
+            (0x6093, 1),
+        )
+    if facts.contract_drive:
+        return float(MOTOR_INCREMENTS_PER_REV)
+    raise _fail(
+        f"drive {drive_id}: 608Fh position encoder resolution not readable (and no 6092h feed "
+        "constant): set scaling.position_increments_per_rev (6064h units per motor "
+        "revolution) in the drive profile",
+        (0x608F, 1),
+    )
+
+
+def velocity_units_per_rev_s(
+    facts: DriveFacts, profile: DriveProfile, position_per_rev: float, drive_id: int
+) -> float:
+    """606Ch/60FFh units per motor rev/s: profile, else position units per s unless a
+    velocity factor (6094h, 6095h, 6096h) other than 1 says otherwise."""
+    if profile.velocity_units_per_rev_s is not None:
+        return float(profile.velocity_units_per_rev_s)
+    for index in (0x6094, 0x6095, 0x6096):
+        present = facts.has((index, 1)) or facts.has((index, 0))
+        if present and facts.ratio(index) != (1, 1):
+            ratio = facts.ratio(index)
+            shown = "not readable" if ratio is None else f"{ratio[0]}/{ratio[1]}"
+            raise _fail(
+                f"drive {drive_id}: velocity factor {index:04X}h is {shown}: set "
+                "scaling.velocity_units_per_rev_s (60FFh units per motor rev/s) in the drive "
+                "profile",
+                (index, 1),
+            )
+    return position_per_rev
+
+
+def rated_torque(facts: DriveFacts, profile: DriveProfile) -> int | None:
+    """6076h in mN·m, None when 0 or absent (torque then in per mille)."""
+    value = profile.rated_torque_mnm
+    if value is None:
+        value = facts.u32((0x6076, 0))
+    return value or None
+
+
+# --- the plan ------------------------------------------------------------------------------------
+def plan(
+    facts: DriveFacts,
+    profile: DriveProfile,
+    drive_id: int,
+    contract_load_increments: float,
+) -> Plan:
+    """Layout, mode and scaling for this drive (module docstring)."""
+    notes: list[str] = []
+    for name, want, got in (
+        ("1018h:01 vendor-ID", profile.vendor_id, facts.vendor_id),
+        ("1018h:02 product code", profile.product_code, facts.product_code),
+    ):
+        if want is not None and got is not None and want != got:
+            raise _fail(
+                f"drive {drive_id}: {name} is 0x{got:08X}, the drive profile "
+                f"'{profile.name}' is for 0x{want:08X}: wrong profile or wrong node-ID",
+                (0x1018, 1 if "vendor" in name else 2),
+            )
+    for key in ((0x6040, 0), (0x6041, 0), (0x6064, 0), (0x60FF, 0), (0x6060, 0)):
+        if not facts.has(key):
+            raise _fail(f"drive {drive_id}: {format_key(key)} missing: not a CiA 402 drive", key)
+    for key in ((0x6064, 0), (0x6041, 0)):
+        if not profile.may_map(key):
+            raise _fail(f"drive {drive_id}: {format_key(key)} is not PDO-mappable", key)
+    if not profile.may_map((0x60FF, 0)) or not profile.may_map((0x6040, 0)):
+        raise _fail(f"drive {drive_id}: 6040h/60FFh are not PDO-mappable", (0x60FF, 0))
+    mode = choose_mode(facts, profile, drive_id)
+    load = load_item(facts, profile, drive_id)
+    source = profile.load_source
+    if source is LoadSource.AUTO:
+        source = (
+            LoadSource.MOTOR
+            if load is None
+            else (LoadSource.ADDITIONAL_SUB1 if load.key[1] else LoadSource.ADDITIONAL_VAR)
+        )
+    pdos = _usable_pdos(facts, profile, drive_id)
+    packed = pack(tpdo_items(facts, profile, load), pdos, profile, drive_id)
+    tt = profile.transmission_type
+    cob_of = dict(zip(profile.tpdos, profile.tpdo_cob_ids or (), strict=False))
+    tpdo_plans = tuple(
+        PdoPlan(
+            p.number,
+            cob_of.get(p.number, (0x180 + 0x100 * (p.number - 1) + drive_id) & 0x7FF),
+            True,
+            tt,
+            tuple(items),
+        )
+        for p, items in packed
+    )
+    rpdo_numbers = {p.number for p in facts.rpdos}
+    if profile.rpdo not in rpdo_numbers:
+        raise _fail(
+            f"drive {drive_id}: RPDO{profile.rpdo} does not exist "
+            f"({0x1400 + profile.rpdo - 1:04X}h); set pdo.rpdo in the drive profile",
+            (0x1400 + profile.rpdo - 1, 1),
+        )
+    rpdo_cob = profile.rpdo_cob_id or (0x200 + 0x100 * (profile.rpdo - 1) + drive_id) & 0x7FF
+    rpdo = PdoPlan(
+        profile.rpdo,
+        rpdo_cob,
+        False,
+        255,
+        (Item(Signal.STATUSWORD, (0x6040, 0), "u16"), Item(Signal.STATUSWORD, (0x60FF, 0), "i32")),
+    )
+    position = position_units_per_rev(facts, profile, drive_id)
+    velocity = velocity_units_per_rev_s(facts, profile, position, drive_id)
+    torque_mnm = rated_torque(facts, profile)
+    if torque_mnm is None:
+        notes.append(
+            "6076h motor rated torque is 0 or absent: torque shown in per mille of the rated torque"
+        )
+    if source in (LoadSource.ADDITIONAL_SUB1, LoadSource.ADDITIONAL_VAR):
+        load_inc = profile.load_increments_per_unit or contract_load_increments
+    elif source is LoadSource.MOTOR:
+        load_inc = contract_load_increments  # unused: no load frame
+        notes.append(
+            "position_feedback = motor: no load measuring system, the position loop closes "
+            "on the motor encoder and the backlash regulator has nothing to do"
+        )
+    else:
+        if profile.load_increments_per_unit is None:
+            what = "load.object" if source is LoadSource.VENDOR else "encoder 6004h"
+            raise _fail(
+                f"drive {drive_id}: the scale of {what} is unknown: set load.increments_per_unit"
+                " (increments per m or rad) in the drive profile"
+            )
+        load_inc = profile.load_increments_per_unit
+    scaling = Scaling(
+        load_inc, None if torque_mnm is None else torque_mnm / 1000.0, position, velocity
+    )
+    frames = [
+        RxFrame(
+            f"TPDO{p.number}",
+            p.cob_id,
+            "<" + "".join(i.code for i in p.items),
+            tuple(i.signal for i in p.items),
+        )
+        for p in tpdo_plans
+    ]
+    encoder_id = profile.encoder_id if source is LoadSource.ENCODER else None
+    if encoder_id is not None:
+        frames.append(
+            RxFrame(
+                f"encoder {encoder_id} TPDO1", 0x180 + encoder_id, "<i", (Signal.LOAD_POSITION,)
+            )
+        )
+    layout = CycleLayout(tuple(frames), rpdo_cob, "<Hi")
+    if mode is VelocityMode.PROFILE_VELOCITY:
+        notes.append(
+            "profile velocity (6060h = 3): 6502h lists no cyclic synchronous velocity; "
+            "set points act on reception, ramps opened (docs/commissioning.md, limits)"
+        )
+    return Plan(
+        tpdo_plans, rpdo, mode, scaling, source, encoder_id, torque_mnm, layout, tuple(notes)
+    )
+
+
+#: Objects the start-up reads (existence and value) besides the PDO parameters.
+CANDIDATES: tuple[ObjectKey, ...] = (
+    (0x6040, 0),
+    (0x6041, 0),
+    (0x6060, 0),
+    (0x6061, 0),
+    (0x6064, 0),
+    (0x606C, 0),
+    (0x6076, 0),
+    (0x6077, 0),
+    (0x6083, 0),
+    (0x6084, 0),
+    (0x60E4, 0),
+    (0x60E4, 1),
+    (0x60FF, 0),
+    (0x608F, 1),
+    (0x608F, 2),
+    (0x6091, 1),
+    (0x6091, 2),
+    (0x6092, 1),
+    (0x6092, 2),
+    (0x6093, 1),
+    (0x6093, 2),
+    (0x6094, 1),
+    (0x6094, 2),
+    (0x6095, 1),
+    (0x6095, 2),
+    (0x6096, 1),
+    (0x6096, 2),
+)

@@ -1,0 +1,204 @@
+"""``python -m plant_sim monitor PATH... --out DIR``: condition monitoring of a fleet.
+
+Finds every trace file (``*.csv``) and candump log (``*.log``) under the paths, runs the
+paper's vibration detector (Fig. 5) over each, gives each vibration episode its eq. 13 band
+verdict, estimates the backlash at reversals where both measuring systems are recorded, and
+writes per-recording, per-episode and per-axis tables (CSV and Parquet), the fleet's Fig. 4,
+the backlash trends, and ``index.html`` with the ranked list of axes to inspect. Runs on Dask:
+local processes (``--workers``) or an existing cluster (``--scheduler``). ``--demo``
+simulates a fleet with a known truth first and prints the confusion matrix.
+
+Exit status: 0 when at least one recording was processed (bad files are listed, one line
+each), 1 when none could be, 2 for bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..errors import FleetMapError, PlantSimError, SchedulerError
+from ..monitor.demo_fleet import FleetSpec, generate
+from ..monitor.fleet import Limits
+from ..monitor.job import confusion, confusion_markdown, monitor, stage
+from ..monitor.sources import discover, load_axis_map
+from .common import positive_float
+
+NAME = "monitor"
+HELP = "condition monitoring of a fleet: vibration episodes, eq. 13 verdicts, backlash trends"
+
+
+def _workers(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 0 <= value <= 256:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be 0 (in this process) .. 256")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "paths",
+        nargs="*",
+        type=Path,
+        metavar="PATH",
+        help="recordings or folders (MACHINE/AXIS/DATE... layout), recursively",
+    )
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--axis", type=Path, help="one axis file for every recording")
+    group.add_argument(
+        "--axes",
+        type=Path,
+        metavar="MAP.toml",
+        help="axis map: axis file per machine/axis (docs/monitor.md)",
+    )
+    parser.add_argument(
+        "--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://HOST:8786"
+    )
+    parser.add_argument(
+        "--workers",
+        type=_workers,
+        default=2,
+        help="local worker processes (default 2; 0 = in this process)",
+    )
+    parser.add_argument(
+        "--growth-limit",
+        type=positive_float,
+        default=5.0,
+        metavar="UM_PER_MONTH",
+        help="warn when backlash grows faster, µm (or µrad) per month (default 5)",
+    )
+    parser.add_argument(
+        "--backlash-limit",
+        type=positive_float,
+        default=50.0,
+        metavar="UM",
+        help="flag a backlash above this, µm (or µrad) (default 50)",
+    )
+    parser.add_argument(
+        "--demo",
+        action="store_true",
+        help="simulate a demo fleet into OUT/demo_fleet first and monitor it",
+    )
+    parser.add_argument(
+        "--demo-size",
+        default="4x3x12",
+        metavar="MxAxR",
+        help="demo fleet: machines x axes x recordings per axis (default 4x3x12)",
+    )
+    parser.add_argument("--no-figures", action="store_true", help="tables only")
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def _demo_size(text: str) -> FleetSpec:
+    try:
+        m, a, r = (int(x) for x in text.lower().split("x"))
+        return FleetSpec(machines=m, axes_per_machine=a, recordings_per_axis=r)
+    except ValueError:
+        raise PlantSimError(f"--demo-size {text!r}: expected MxAxR, e.g. 4x3x12") from None
+
+
+def run(args: argparse.Namespace) -> int:
+    quiet = args.quiet
+    if args.out.exists() and not args.out.is_dir():
+        raise PlantSimError(f"--out {args.out}: exists and is not a folder")
+    paths = list(args.paths)
+    truth_file = None
+    axis_map = None
+    if args.demo:
+        spec = _demo_size(args.demo_size)
+        if min(spec.machines, spec.axes_per_machine, spec.recordings_per_axis) < 1:
+            raise PlantSimError("--demo-size: every count must be >= 1")
+        fleet = args.out / "demo_fleet"
+        total = spec.machines * spec.axes_per_machine * spec.recordings_per_axis
+        stage(f"simulating a demo fleet of {total} recordings into {fleet}", quiet)
+        _bar = _progress(total, "simulate", quiet)
+        generate(fleet, spec, progress=lambda done, n: _bar(done))
+        paths = [fleet]
+        truth_file = fleet / "truth.json"
+        axis_map = load_axis_map(fleet / "axes.toml")
+    elif not paths:
+        raise PlantSimError("no PATH given: name recordings or folders (or use --demo)")
+    if args.axes is not None:
+        axis_map = load_axis_map(args.axes)
+    found = discover(paths, axis_file=args.axis, axis_map=axis_map)
+    for p in found.missing_paths:
+        print(f"monitor: {p}: no such file or folder (skipped)", file=sys.stderr)
+    if not found.sources:
+        print("monitor: no recordings (*.csv, *.log) found", file=sys.stderr)
+        return 1
+    where = args.scheduler or (
+        f"{args.workers} local processes" if args.workers else "this process"
+    )
+    stage(f"analysing {len(found.sources)} recordings on {where}", quiet)
+    bar = _progress(len(found.sources), "analyse", quiet)
+    count = [0]
+
+    def on_result(result: object) -> None:
+        count[0] += 1
+        bar(count[0])
+
+    limits = Limits(growth_per_month=args.growth_limit * 1e-6, backlash=args.backlash_limit * 1e-6)
+    try:
+        result = monitor(
+            found,
+            args.out,
+            limits,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            figures=not args.no_figures,
+            on_result=on_result,
+        )
+    except SchedulerError as exc:
+        print(f"python -m plant_sim monitor: {exc}", file=sys.stderr)
+        return 1
+    for r in result.results:
+        if not r.ok:
+            print(f"monitor: skipped {r.error}", file=sys.stderr)
+    rate = len(result.results) / result.elapsed_s * 60 if result.elapsed_s > 0 else 0.0
+    print(
+        f"monitor: {result.processed} recordings analysed, {result.failed} skipped, "
+        f"{len(result.ranked)} axes, {result.elapsed_s:.1f} s ({rate:.0f} recordings/min)"
+    )
+    urgent = [t for t in result.ranked if t.reasons][:10]
+    for i, t in enumerate(urgent, 1):
+        print(f"  {i:2d}. {t.axis_id}: {'; '.join(t.reasons)}")
+    if truth_file is not None:
+        matrix = confusion(result.ranked, truth_file)
+        (args.out / "confusion.json").write_text(json.dumps(matrix, indent=1))
+        print("demo fleet, axes by truth (rows) and monitor verdict (columns):")
+        print(confusion_markdown(matrix))
+    print("wrote " + ", ".join(str(f) for f in result.files))
+    return 0 if result.processed else 1
+
+
+def _progress(total: int, label: str, quiet: bool):
+    """A tqdm bar on a terminal, a line per 10 % when not; ``update(done)`` callback."""
+    if quiet:
+        return lambda done: None
+    if sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc=label, unit="rec", leave=False)
+
+        def update(done: int) -> None:
+            bar.update(done - bar.n)
+            if done >= total:
+                bar.close()
+
+        return update
+    step = max(1, total // 10)
+
+    def line(done: int) -> None:
+        if done % step == 0 or done == total:
+            print(f"monitor: {label} {done}/{total}", file=sys.stderr, flush=True)
+
+    return line
+
+
+__all__ = ["HELP", "NAME", "FleetMapError", "add_arguments", "run"]
