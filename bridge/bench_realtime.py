@@ -303,6 +303,7 @@ def realtime_run(
         result["missed_tpdo_cycles"] = bridge.counters.missed_cycles
         result["late_tpdos"] = bridge.counters.late
         result["stopped"] = bridge.controller.state is BridgeState.STOPPED
+        result["stop_message"] = bridge.controller.stop_message
         if rt.rt_priority is not None:  # back to ordinary scheduling for the tear-down
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     return result

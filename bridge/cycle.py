@@ -175,6 +175,7 @@ class CycleController:
         self.statusword = 0
         self._load_speed = 0.0
         self._have_sample = False
+        self._status_in = False  # the statusword came with this cycle's frames
         # controller values of the last cycle
         self.position_reference = 0.0
         self.omega_s = 0.0
@@ -226,6 +227,7 @@ class CycleController:
         frame_of = {s: i for i, f in enumerate(layout.frames) for s in f.signals}
         self._position_frame = frame_of[Signal.MOTOR_POSITION]
         self._load_frame = frame_of.get(Signal.LOAD_POSITION, self._position_frame)
+        self._status_frame = frame_of[Signal.STATUSWORD]
         self._raw = [0, 0, 0, 0, 0]
 
     @property
@@ -401,6 +403,7 @@ class CycleController:
             for slot, value in zip(slots, unpack(data)):  # noqa: B905 (same length)
                 raw[slot] = value
         position_in = frames[self._position_frame] is not None
+        self._status_in = frames[self._status_frame] is not None
         load_in = frames[self._load_frame] is not None
         # raw: motor position, load position, statusword, torque, motor velocity
         self.statusword = raw[2]
@@ -497,6 +500,13 @@ class CycleController:
                 f"drive not in Operation Enabled after {ENABLE_TIMEOUT_S:g} s "
                 f"(state {ds.value}, statusword 0x{self.statusword:04X})",
             )
+            return
+        if not self._status_in:
+            # no statusword this cycle: the drive's state is unknown (the first SYNC after the
+            # start-up may be answered late); repeat the last controlword rather than command a
+            # transition from a state that was never read (0x0000 would disable a drive the
+            # start-up already brought to Operation Enabled)
+            self._output(self.controlword, 0.0)
             return
         self._output(enable_controlword(ds, self.controlword), 0.0)
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from plant_sim.axis import AxisKind
 
-from .cycle import BridgeState, CycleController, StopReason
+from .cycle import CW_RUNNING, BridgeState, CycleController, StopReason
 from .errors import BridgeConfigError, PdoFrameError
 from .layout import SYNC_COB_ID, CobIds, CycleLayout, check_node_id, contract_layout
 from .loopstats import Timing
@@ -335,6 +335,9 @@ class Bridge:
                 )
                 info = master.run()
             self.drive_info = info
+            # the start-up left the drive in Operation Enabled: 000Fh keeps it there, also
+            # when the first cycles bring no statusword (the controller repeats it then)
+            self.controller.controlword = CW_RUNNING
             self.scaling = info.scaling
             self.controller.set_scaling(self.scaling)
             self.use_layout(info.layout)

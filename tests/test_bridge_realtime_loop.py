@@ -395,3 +395,32 @@ def test_bench_with_the_drive_in_its_own_process(tmp_path: Path) -> None:
     assert r["missed_tpdo_cycles"] < r["cycles"]  # the drive process answered
     assert sum(r["latency_histogram_us"].values()) == r["cycles"]
     assert r["drive_cpu_percent_of_one_core"] > 0.0
+
+
+@pytest.mark.parametrize("lost_first", [1, 3])
+def test_a_late_first_answer_does_not_knock_the_drive_out_of_operation_enabled(
+    lost_first: int,
+) -> None:
+    """After the start-up the drive is in Operation Enabled. If the first SYNCs bring no
+    statusword (answered after the window), the controller repeats 000Fh instead of
+    commanding a transition from a state it never read; checked against the simulated
+    drive's own CiA 402 state machine (plant_sim.drive.cia402)."""
+    from bridge_helpers import PayloadDrive, controller  # tests/ helper module
+
+    from bridge.cycle import CW_RUNNING
+    from plant_sim.drive import cia402
+
+    c = controller()  # ENABLING, as after Bridge.start()
+    c.controlword = CW_RUNNING  # what Bridge.start() leaves after the SDO start-up
+    fsm = cia402.StateMachine()
+    fsm.state = cia402.State402.OPERATION_ENABLED
+    drive = PayloadDrive(AXIS)
+    for k in range(lost_first + 5):
+        tpdo1, _ = drive.tpdos()
+        sw = cia402.status_bits(fsm.state)
+        tpdo2 = None if k < lost_first else TPDO2_STRUCT.pack(sw, 0, 0)
+        rpdo = c.step(k * CYCLE_S, tpdo1, tpdo2)
+        cw, _ = RPDO1_STRUCT.unpack(rpdo)
+        fsm.controlword_written(cw, quick_stop_stays=False, fault_cleared=lambda: True)
+        assert fsm.state is cia402.State402.OPERATION_ENABLED, (k, hex(cw))
+    assert c.state is BridgeState.RUNNING
