@@ -20,6 +20,7 @@ from virtual_bus.errors import BusUnavailableError
 
 from .commands.common import PROG
 from .errors import BridgeError, DriveSetupError
+from .realtime import RealTimeRefused
 
 COMMANDS = ("run", "demo", "busload", "bench", "eds", "config", "probe")
 DESCRIPTION = (
@@ -30,6 +31,7 @@ DESCRIPTION = (
 #: Checked in this order (subclasses before their roots).
 FAILURES = (
     cli.Failure((DriveSetupError,), cli.EXIT_FAILURE, "drive start-up failed"),
+    cli.Failure((RealTimeRefused,), cli.EXIT_FAILURE, "refused"),
     cli.Failure((BusUnavailableError,), cli.EXIT_FAILURE),
     cli.Failure((BridgeError, PlantSimError, VirtualBusError)),
     cli.Failure((can.CanError,), cli.EXIT_FAILURE, "CAN bus error"),

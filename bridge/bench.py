@@ -1,36 +1,33 @@
 """``python -m bridge bench``: throughput in lockstep, latency in real time.
 
 Lockstep: the paper's section X (regulated) through the full stack -- the bridge's loop,
-python-can's virtual bus, the simulated drive with its PDO engine and physics in its own
-thread -- once without recording and once with the trace file and the candump log; control
-cycles per second of wall time and CPU time per cycle.
+python-can's virtual bus, the simulated drive with its PDO engine and physics (receiving in
+the loop's thread) -- once without recording and once with the trace file and the candump
+log; control cycles per second of wall time and CPU time per cycle.
 
-Real time: SYNC from the wall clock at the axis' position cycle (1 kHz for the paper's axis)
-for ``seconds``, the axis moving back and forth; SYNC-to-set-point latency (SYNC sent to RPDO
-sent, wall clock) median / p99 / max, how late SYNCs left against their schedule, skipped
-SYNCs, cycles without a complete TPDO set, and CPU use of the process.
+Real time (:mod:`bridge.bench_realtime`): SYNC from the wall clock at ``rate_hz`` for
+``seconds`` with the simulated drive in its own process (as root: udp_multicast in a private
+network namespace) or in a thread; latency, SYNC jitter, histograms, skipped SYNCs, cycles
+without a complete TPDO set, CPU time per cycle.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import math
+import os
 import tempfile
 import time
 from pathlib import Path
-
-import numpy as np
 
 from plant_sim.axis import AxisConfig
 from plant_sim.scenarios import SectionX
 from regulator import RegulatorConfig
 
+from .bench_realtime import DrivePlacement, can_run_process_drive, realtime_run
 from .cycle import BridgeState
-from .interpolator import Move
 from .params import BridgeParams
+from .realtime import RealTimeOptions, RealTimeRefused
 from .sim import play_references, simulated_axis
-from .timing import TimeMode
 
 
 def _params(axis: AxisConfig) -> BridgeParams:
@@ -68,45 +65,30 @@ def lockstep_run(axis: AxisConfig, cycles: int, record: bool) -> dict[str, float
     }
 
 
-def realtime_run(axis: AxisConfig, seconds: float) -> dict[str, float]:
-    """SYNC from the wall clock for ``seconds``; the axis moves ±20 mm (or rad) back and forth."""
-    # counted, not acted on: a loaded host delays the simulated drive's thread now and then
-    params = dataclasses.replace(_params(axis), pdo_loss_tolerance=255)
-    cycles = round(seconds / params.cycle_s)
-    with simulated_axis(
-        axis, params, time_mode=TimeMode.REAL_TIME, keep_trace=False, keep_timing=True
-    ) as sim:
-        bridge = sim.bridge
-        feed = params.feed
-        move_s = 0.02 / feed + 0.1 + 0.1  # travel, acceleration ramps, dwell
-        for i in range(math.ceil(seconds / move_s) + 2):
-            bridge.controller.queue_move(
-                Move(0.02 if i % 2 == 0 else 0.0, feed, accel=10 * feed, dwell_s=0.1)
-            )
-        wall0, cpu0 = time.perf_counter(), time.process_time()
-        n = bridge.run(until=lambda b: b.cycle_index >= cycles)
-        wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-        lat = bridge.latencies() * 1e6
-        timing = bridge.timing
-        assert timing is not None
-        late = np.asarray(timing.sync_late_s) * 1e6
-        counters = bridge.counters
-        state = bridge.controller.state
-    return {
-        "seconds": wall,
-        "cycles": n,
-        "latency_us_median": float(np.median(lat)),
-        "latency_us_p99": float(np.percentile(lat, 99)),
-        "latency_us_max": float(np.max(lat)),
-        "sync_late_us_median": float(np.median(late)),
-        "sync_late_us_p99": float(np.percentile(late, 99)),
-        "sync_late_us_max": float(np.max(late)),
-        "skipped_syncs": timing.skipped_syncs,
-        "missed_tpdo_cycles": counters.missed_cycles,
-        "late_tpdos": counters.late,
-        "cpu_percent_of_one_core": 100.0 * cpu / wall,
-        "stopped": state is BridgeState.STOPPED,
-    }
+def _placement(drive: str) -> DrivePlacement:
+    why = can_run_process_drive()
+    if drive == "thread":
+        return DrivePlacement.THREAD
+    if why is None:
+        print(
+            "bench: the simulated drive runs as its own process (udp_multicast in a private "
+            "network namespace, removed after the run)"
+        )
+        return DrivePlacement.PROCESS
+    if drive == "process":
+        raise RealTimeRefused(f"--drive process: {why}", setting="drive")
+    print(
+        f"bench: {why}; the simulated drive runs in this process instead (its physics and "
+        "threads share the interpreter: the figures are not the bridge's alone)"
+    )
+    return DrivePlacement.THREAD
+
+
+def _other_cpu(cpu: int | None) -> int | None:
+    if cpu is None:
+        return None
+    others = sorted(set(os.sched_getaffinity(0)) - {cpu})
+    return others[0] if others else None
 
 
 def run_bench(
@@ -116,8 +98,14 @@ def run_bench(
     seconds: float | None,
     lockstep: bool = True,
     json_path: Path | None = None,
+    rate_hz: float | None = None,
+    rt: RealTimeOptions | None = None,
+    drive: str = "auto",
+    drive_cpu: int | None = None,
 ) -> dict[str, object]:
     results: dict[str, object] = {}
+    rt = rt or RealTimeOptions()
+    placement = _placement(drive) if seconds is not None else DrivePlacement.THREAD
     if lockstep:
         for record in (False, True):
             key = "lockstep_recording" if record else "lockstep"
@@ -130,16 +118,30 @@ def run_bench(
                 f"missed TPDOs {r['missed_tpdos']}"
             )
     if seconds is not None:
-        r = realtime_run(axis, seconds)
+        if drive_cpu is None and placement is DrivePlacement.PROCESS:
+            drive_cpu = _other_cpu(rt.cpu)
+        load = os.getloadavg()
+        r = realtime_run(
+            axis, seconds, rate_hz=rate_hz, rt=rt, placement=placement, drive_cpu=drive_cpu
+        )
+        r["load_average_1_5_15"] = [round(x, 2) for x in load]
         results["realtime"] = r
         print(
-            f"realtime {1 / axis.control.position_cycle:.0f} Hz for {r['seconds']:.1f} s: "
+            f"realtime {r['rate_hz']:.0f} Hz for {r['seconds']:.1f} s, drive: {r['drive']}, "
+            f"options: {r['realtime_options']}, load average before {load[0]:.2f}: "
             f"SYNC-to-set-point latency median {r['latency_us_median']:.0f} µs, p99 "
-            f"{r['latency_us_p99']:.0f} µs, max {r['latency_us_max']:.0f} µs; SYNC late "
-            f"median {r['sync_late_us_median']:.0f} µs, p99 {r['sync_late_us_p99']:.0f} µs, "
-            f"max {r['sync_late_us_max']:.0f} µs; skipped SYNCs {r['skipped_syncs']}, cycles "
-            f"without all TPDOs {r['missed_tpdo_cycles']}; CPU {r['cpu_percent_of_one_core']:.0f} "
-            "% of one core (bridge + simulated drive)"
+            f"{r['latency_us_p99']:.0f} µs, max {r['latency_us_max']:.0f} µs (bridge's share "
+            f"median {r['compute_us_median']:.0f} µs, p99 {r['compute_us_p99']:.0f} µs); SYNC "
+            f"late median {r['sync_late_us_median']:.0f} µs, p99 {r['sync_late_us_p99']:.0f} "
+            f"µs, max {r['sync_late_us_max']:.0f} µs; skipped SYNCs {r['skipped_syncs']} "
+            f"({r['overruns']} overruns), cycles without all TPDOs {r['missed_tpdo_cycles']}; "
+            f"loop CPU {r['cpu_us_per_cycle']:.0f} µs/cycle"
+        )
+        print(f"latency histogram (µs): {r['latency_histogram_us']}")
+        print(
+            f"host alone (a clock-reading thread, same options, {r['host_gaps_over_50us']} gaps "
+            f"> 50 µs in 2 s, longest {r['host_gap_us_max']:.0f} µs): the floor under the "
+            "loop's maximum"
         )
     if json_path is not None:
         json_path.write_text(json.dumps(results, indent=2) + "\n")

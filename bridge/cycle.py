@@ -69,6 +69,8 @@ class StopReason(Enum):
     DRIVE_NMT = 8  # the drive's heartbeat reports boot-up or a non-operational NMT state
     ENABLE_TIMEOUT = 9  # the drive did not reach Operation Enabled within ENABLE_TIMEOUT_S
     POSITION_LIMIT = 10  # the load scale is outside 2014h and no move heads back inside
+    CYCLE_OVERRUN = 11  # the loop overran its cycle (SYNC slots skipped) too often in a row
+    INTERNAL_ERROR = 12  # the controller's own step failed (a bug; the message names it)
 
 
 class Command(IntEnum):
@@ -173,6 +175,7 @@ class CycleController:
         self.statusword = 0
         self._load_speed = 0.0
         self._have_sample = False
+        self._status_in = False  # the statusword came with this cycle's frames
         # controller values of the last cycle
         self.position_reference = 0.0
         self.omega_s = 0.0
@@ -224,6 +227,7 @@ class CycleController:
         frame_of = {s: i for i, f in enumerate(layout.frames) for s in f.signals}
         self._position_frame = frame_of[Signal.MOTOR_POSITION]
         self._load_frame = frame_of.get(Signal.LOAD_POSITION, self._position_frame)
+        self._status_frame = frame_of[Signal.STATUSWORD]
         self._raw = [0, 0, 0, 0, 0]
 
     @property
@@ -305,6 +309,12 @@ class CycleController:
                 value=int(command),
                 abort_code=SdoAbort.DEVICE_STATE,
             )
+
+    def stop(self, reason: StopReason, message: str) -> None:
+        """Stop the axis from outside the controller (the loop: overruns, its own errors);
+        only while the axis is enabled -- a stop already in force keeps its reason."""
+        if self.axis_enabled:
+            self._stop(reason, message)
 
     def check_path(self, item: Move | Table) -> None:
         """Refuse motion whose path leaves the software position limits (2014h): a move's
@@ -393,6 +403,7 @@ class CycleController:
             for slot, value in zip(slots, unpack(data)):  # noqa: B905 (same length)
                 raw[slot] = value
         position_in = frames[self._position_frame] is not None
+        self._status_in = frames[self._status_frame] is not None
         load_in = frames[self._load_frame] is not None
         # raw: motor position, load position, statusword, torque, motor velocity
         self.statusword = raw[2]
@@ -489,6 +500,13 @@ class CycleController:
                 f"drive not in Operation Enabled after {ENABLE_TIMEOUT_S:g} s "
                 f"(state {ds.value}, statusword 0x{self.statusword:04X})",
             )
+            return
+        if not self._status_in:
+            # no statusword this cycle: the drive's state is unknown (the first SYNC after the
+            # start-up may be answered late); repeat the last controlword rather than command a
+            # transition from a state that was never read (0x0000 would disable a drive the
+            # start-up already brought to Operation Enabled)
+            self._output(self.controlword, 0.0)
             return
         self._output(enable_controlword(ds, self.controlword), 0.0)
 

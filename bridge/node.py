@@ -1,13 +1,22 @@
 """The bridge on the bus: its CANopen node, the start-up, and the loop that runs the cycle.
 
-One thread does everything during the loop: it sends SYNC, reads frames until the drive's
-TPDOs of that SYNC are in (or the window of the time mode is over), hands them to the pure
-:class:`~bridge.cycle.CycleController`, sends the RPDO and records the row. Frames that are not
-TPDOs are dispatched on the way: the drive's heartbeat and EMCY to the controller, SDO requests
-of any CANopen tool to the bridge's own SDO server (a canopen LocalNode with
-``config/bridge.eds``), everything else to canopen's network dispatch. canopen's PDO
-machinery is not used on the cycle path: the TPDO payloads are unpacked with precompiled
-structs and the RPDO message object is reused.
+One thread does everything during the loop, without hand-offs (no notifier thread, no queue
+between threads): it sends SYNC on its slot, reads frames until the drive's TPDOs of that SYNC
+are in (or the window of the time mode is over), hands them to the pure
+:class:`~bridge.cycle.CycleController`, sends the RPDO and records the row. On the cycle path
+only the two TPDOs are decoded (precompiled structs, payloads kept as received); every other
+frame -- the drive's heartbeat and EMCY, SDO requests of any CANopen tool to the bridge's own
+SDO server (a canopen LocalNode with ``config/bridge.eds``), NMT, everything canopen handles --
+is put in a bounded ring and handled between cycles, after the RPDO has gone out and only while
+the next SYNC is more than ``service_guard_s`` away: a long SDO transfer takes more cycles, it
+never delays a SYNC. The SYNC and RPDO message objects and the RPDO payload are built once and
+rewritten in place.
+
+Nothing on the cycle path raises into the loop: a send or receive error of the bus, an
+exception while handling a frame between cycles or while recording is logged and counted
+(:class:`~bridge.loopstats.Timing`); an exception of the controller itself stops the axis.
+A SYNC slot the loop cannot meet is skipped (see :mod:`bridge.timing`), and ``overrun_limit``
+overrunning cycles in a row stop the axis (:attr:`StopReason.CYCLE_OVERRUN`).
 
 During start-up (:meth:`Bridge.start`) a service thread feeds received frames to canopen so
 that the blocking SDO client of :mod:`bridge.master` gets its answers; it ends before the loop
@@ -21,6 +30,7 @@ import logging
 import struct
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,22 +41,35 @@ import numpy as np
 
 from plant_sim.axis import AxisKind
 
-from .cycle import BridgeState, CycleController
+from .cycle import CW_RUNNING, BridgeState, CycleController, StopReason
 from .errors import BridgeConfigError, PdoFrameError
 from .layout import SYNC_COB_ID, CobIds, CycleLayout, check_node_id, contract_layout
+from .loopstats import Timing
 from .master import DriveInfo, DriveMaster, DriveSetup
 from .objects import ObjectServer, PdoCounters
 from .od import DEFAULT_DRIVE_ID, DEFAULT_EDS_PATH, DEFAULT_NODE_ID, load_od
 from .params import BridgeParams
 from .profile import DriveProfile
+from .realtime import GcBetweenCycles
 from .recorder import BusLog, TraceRecorder
 from .scaling import Scaling
 from .store import ParameterStore
-from .timing import Pacer, RealTimePacer
+from .timing import Pacer, TimeMode
 
 log = logging.getLogger("bridge")
 
 _EMCY = struct.Struct("<HB")
+
+#: Frames other than the TPDOs held for handling between cycles; beyond this they are dropped
+#: (counted in Timing.service_dropped; an SDO client repeats, a heartbeat comes again).
+SERVICE_RING_FRAMES = 256
+#: Between cycles, frames are handled only while the next SYNC is more than this share of the
+#: cycle away (real time).
+DEFAULT_SERVICE_GUARD_FRACTION = 0.25
+#: Frames read without waiting at the end of a wait (SYNC instant, end of the TPDO window).
+LATE_READ_FRAMES = 16
+#: Cycles in a row that overrun (a SYNC slot after them skipped) before the axis is stopped.
+DEFAULT_OVERRUN_LIMIT = 3
 
 
 _MESSAGE_FIELDS = tuple(name for name in can.Message.__slots__ if not name.startswith("__"))
@@ -142,22 +165,17 @@ class BridgeConfig:
             )
 
 
-@dataclass
-class Timing:
-    """Real-time statistics of the loop (wall clock): SYNC-to-set-point latency per cycle (s)
-    and SYNCs that had to be skipped because the loop fell behind."""
-
-    latencies_s: list[float] = field(default_factory=list)
-    skipped_syncs: int = 0
-    sync_late_s: list[float] = field(default_factory=list)
-
-
 class Bridge:
     """The bridge node on ``bus`` (see the module docstring).
 
     params: the controller's parameters. kind: linear or rotary (scaling of the load scale).
     pacer: time mode (lockstep or real time). recorder / bus_log: optional recording.
-    keep_timing: collect per-cycle latencies (for benchmarks).
+    keep_timing: keep per-cycle timing (:class:`~bridge.loopstats.Timing`, for benchmarks);
+    the counts (skipped SYNCs, overruns, errors) are kept either way in :attr:`timing`.
+    overrun_limit: overrunning cycles in a row that stop the axis (None: only counted).
+    gc_control: the garbage collector frozen after start-up and run between cycles.
+    busy_poll: poll the bus (no blocking wait) while waiting for the TPDOs: no wake-up
+    latency, a core kept busy during the window (for an isolated CPU).
     """
 
     def __init__(
@@ -172,6 +190,10 @@ class Bridge:
         bus_log: BusLog | None = None,
         keep_timing: bool = False,
         wall: Callable[[], float] = time.monotonic,
+        overrun_limit: int | None = DEFAULT_OVERRUN_LIMIT,
+        service_guard_fraction: float = DEFAULT_SERVICE_GUARD_FRACTION,
+        gc_control: GcBetweenCycles | None = None,
+        busy_poll: bool = False,
     ) -> None:
         self.config = config
         self.pacer = pacer
@@ -199,14 +221,27 @@ class Bridge:
             self.controller.set_params(self.objects.apply_stored(stored, str(store.path)))
             log.info("parameters loaded from %s", store.path)
         self.objects.attach(self.node)
-        self.timing = Timing() if keep_timing else None
+        self.timing = Timing(16 if not keep_timing else 65536)
+        self._keep_timing = keep_timing
         self._wall = wall
+        if overrun_limit is not None and overrun_limit < 1:
+            raise BridgeConfigError(f"overrun_limit = {overrun_limit!r}: must be >= 1 or None")
+        if not 0.0 <= service_guard_fraction < 1.0:
+            raise BridgeConfigError(
+                f"service_guard_fraction = {service_guard_fraction!r}: must be in [0, 1)"
+            )
+        self.overrun_limit = overrun_limit
+        self.service_guard_s = service_guard_fraction * pacer.cycle_s
+        self.gc_control = gc_control
+        self.busy_poll = busy_poll
+        self._service: deque[can.Message] = deque()
         self._k = 0
         self._window_open = False
         self._record_pending = False
         self._sync_msg = CycleMessage(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
         self._sync_msg.is_rx = False
         self._encoder_heartbeat = -1
+        self._supervision_ids = frozenset((self.ids.emcy, self.ids.heartbeat))
         self.use_layout(contract_layout(config.drive_id))
         self.drive_info: DriveInfo | None = None
         #: Called with k before SYNC k is sent (a harness hook, e.g. the simulated drive's
@@ -300,6 +335,9 @@ class Bridge:
                 )
                 info = master.run()
             self.drive_info = info
+            # the start-up left the drive in Operation Enabled: 000Fh keeps it there, also
+            # when the first cycles bring no statusword (the controller repeats it then)
+            self.controller.controlword = CW_RUNNING
             self.scaling = info.scaling
             self.controller.set_scaling(self.scaling)
             self.use_layout(info.layout)
@@ -307,82 +345,191 @@ class Bridge:
             if info.encoder_id is not None:
                 self.controller.encoder_id = info.encoder_id
                 self._encoder_heartbeat = 0x700 + info.encoder_id
+                self._supervision_ids = self._supervision_ids | {self._encoder_heartbeat}
         self.controller.restart_supervision()
         self.controller.state = BridgeState.ENABLING
         return self.drive_info
 
     # --- the loop ---------------------------------------------------------------------------
-    def _pump_until(self, wall_deadline: float | None) -> None:
-        """Dispatch frames until ``wall_deadline``; ``None``: only those already waiting.
-        Between windows, a TPDO is late (counted, not used)."""
-        wall = self._wall
-        recv = self.port.recv
-        spin = self.pacer.spin_s
-        while True:
-            remaining = 0.0 if wall_deadline is None else wall_deadline - wall()
-            msg = recv(remaining - spin if remaining > spin else 0.0)
-            if msg is None:
-                if remaining <= 0.0:
-                    return
-                continue
+    def _receive(self, msg: can.Message) -> None:
+        """A frame received by the loop: a TPDO of the layout goes to its slot now (or counts
+        late outside a window); the drive's EMCY and heartbeat (and an encoder's heartbeat)
+        are supervision inputs of this very cycle and cheap (a few assignments): handled now;
+        anything else (SDO, NMT, what canopen handles) waits in the service ring for the time
+        between cycles."""
+        cid = msg.arbitration_id
+        slot = self._slot_of.get(cid)
+        if slot is not None and not msg.is_remote_frame:
+            self._tpdo(slot, msg.data)
+        elif cid in self._supervision_ids:
+            try:
+                self.dispatch(msg)
+            except Exception:
+                self.timing.errors += 1
+                log.exception("frame 0x%03X: handling failed; ignored", cid)
+        elif len(self._service) < SERVICE_RING_FRAMES:
+            self._service.append(msg)
+        else:
+            self.timing.service_dropped += 1
+
+    def _serve_one(self) -> None:
+        msg = self._service.popleft()
+        try:
             self.dispatch(msg)
+        except Exception:  # a tool's bad request must not end the loop
+            self.timing.errors += 1
+            log.exception("frame 0x%03X: handling failed; ignored", msg.arbitration_id)
+
+    def _recv(self, timeout: float) -> can.Message | None:
+        try:
+            return self.port.recv(timeout)
+        except (can.CanError, OSError) as exc:
+            self.timing.errors += 1
+            log.error("receive failed: %s", exc)
+            return None
+
+    def _send(self, msg: can.Message) -> bool:
+        try:
+            self.port.send(msg)
+            return True
+        except (can.CanError, OSError) as exc:
+            self.timing.errors += 1
+            log.error("send of 0x%03X failed: %s", msg.arbitration_id, exc)
+            return False
+
+    def _between_cycles(self, due: float | None) -> None:
+        """Until the wall instant ``due`` (``None``: lockstep, no waiting): handle the frames
+        in the service ring and those arriving, and collect garbage (``gc_control``), each
+        only while ``due`` is more than ``service_guard_s`` away; the last ``spin_s`` are
+        polled. TPDOs arriving now belong to an earlier SYNC: counted late, never used."""
+        service = self._service
+        if due is None:
+            while True:
+                while service:
+                    self._serve_one()
+                msg = self._recv(0.0)
+                if msg is None:
+                    break
+                self._receive(msg)
+            gc_control = self.gc_control
+            if gc_control is not None and gc_control.due():
+                gc_control.collect()
+            return
+        wall = self._wall
+        guard = self.service_guard_s
+        spin = self.pacer.spin_s
+        gc_control = self.gc_control
+        receive = self._receive
+        while True:
+            remaining = due - wall()
+            if remaining <= spin:
+                break
+            if remaining > guard:
+                if service:
+                    self._serve_one()
+                    continue
+                if gc_control is not None and gc_control.due():
+                    gc_control.collect()
+                    continue
+            msg = self._recv(remaining - spin)
+            if msg is not None:
+                receive(msg)
+        # the last spin_s: poll the clock, not the bus (a blocking wait wakes late, a bus poll
+        # is a system call); then take what arrived meanwhile, so that a TPDO of an earlier
+        # SYNC is counted late and never used for the next one
+        while wall() < due:
+            pass
+        for _ in range(LATE_READ_FRAMES):  # bounded: a flood of frames cannot hold the SYNC
+            msg = self._recv(0.0)
+            if msg is None:
+                break
+            receive(msg)
 
     def drain(self) -> None:
-        """Dispatch the frames already received, outside any cycle (TPDOs count as late)."""
-        self._pump_until(None)
+        """Handle the frames already received, outside any cycle (TPDOs count as late)."""
+        self._between_cycles(None)
 
     def run_cycle(self) -> None:
-        """One SYNC: send it, collect the TPDOs, step the controller, send the RPDO, record."""
-        k = self._k
+        """One SYNC: wait for its slot (handling other frames), send it, collect the TPDOs,
+        step the controller, send the RPDO, handle waiting frames, record."""
         pacer = self.pacer
-        due = pacer.begin_cycle(k)
-        # real time: wait for the SYNC instant; lockstep: take what is already there. Either
-        # way TPDOs that come now belong to an earlier SYNC and are counted late, so a drive
-        # that answered after the window cannot shift the data of the following cycles.
-        self._pump_until(due)
+        wall = self._wall
+        timing = self.timing
+        k = self._k
+        skipped = 0
+        while True:
+            slot, due = pacer.slot(k)
+            skipped += slot - k
+            k = slot
+            self._between_cycles(due)
+            if due is None:
+                break
+            sync_wall = wall()
+            if pacer.on_time(due, sync_wall):
+                break
+            k += 1  # preempted past the slot while waiting: skip it, never send it late
+            skipped += 1
+        in_a_row = timing.overran(skipped)
+        limit = self.overrun_limit
+        if skipped and limit is not None and in_a_row >= limit:
+            self.controller.stop(
+                StopReason.CYCLE_OVERRUN,
+                f"{in_a_row} cycles in a row overran the {pacer.cycle_s * 1e3:g} ms cycle "
+                f"({skipped} SYNC slot(s) skipped before SYNC {k}; limit {limit})",
+            )
         if self.before_sync is not None:
             self.before_sync(k)
-        wall = self._wall
         slots = self._slots
         for i in range(len(slots)):
             slots[i] = None
-        sync_wall = wall()
         self._window_open = True
-        self.port.send(self._sync_msg)
+        sync_wall = wall()
+        self._send(self._sync_msg)
         if self.peer_poll is not None:
             self.peer_poll()
         end = pacer.window_end(sync_wall)
         if self._record_pending:  # the previous row, while the drive answers the SYNC
             self.flush_record()
-        recv = self.port.recv
+        recv = self._recv
+        receive = self._receive
+        busy_poll = self.busy_poll
+        # until all TPDOs are in or the window is over; frames already received when it is
+        # over still count (the loop may have been preempted while they were waiting), at
+        # most LATE_READ_FRAMES of them (a flood of frames cannot hold the cycle)
+        late_reads = LATE_READ_FRAMES
         while None in slots:
             remaining = end - wall()
             if remaining <= 0.0:
-                break
-            msg = recv(remaining)
+                late_reads -= 1
+                if late_reads < 0:
+                    break
+            msg = recv(remaining if remaining > 0.0 and not busy_poll else 0.0)
             if msg is not None:
-                self.dispatch(msg)
+                receive(msg)
+            elif remaining <= 0.0:
+                break
         self._window_open = False
+        inputs_wall = wall()
         counters = self.counters
         counters.cycles += 1
         lost = slots.count(None)
         if lost:
             counters.missed_cycles += 1
             counters.missed += lost
-        self.controller.step(pacer.now(), *slots)
-        self.port.send(self._rpdo_msg)
-        if self.timing is not None:
-            self.timing.latencies_s.append(wall() - sync_wall)
-            if due is not None:
-                self.timing.sync_late_s.append(sync_wall - due)
+        try:
+            self.controller.step(pacer.now(), *slots)
+        except Exception as exc:  # a bug must not leave the last set point standing
+            timing.errors += 1
+            log.exception("controller step failed")
+            self.controller.stop(StopReason.INTERNAL_ERROR, f"controller step failed: {exc!r}")
+        self._send(self._rpdo_msg)
+        if self._keep_timing:
+            now = wall()
+            timing.record(
+                0.0 if due is None else sync_wall - due, now - sync_wall, now - inputs_wall
+            )
         self._record_pending = self.recorder is not None
         self._k = k + 1
-        if isinstance(pacer, RealTimePacer):
-            behind = pacer.cycles_behind(self._k)
-            if behind:
-                self._k += behind
-                if self.timing is not None:
-                    self.timing.skipped_syncs += behind
 
     def run(self, cycles: int | None = None, until: Callable[[Bridge], bool] | None = None) -> int:
         """Run cycles until ``cycles`` are done or ``until(bridge)`` is true (checked after each
@@ -390,6 +537,13 @@ class Bridge:
         if cycles is None and until is None:
             raise BridgeConfigError("run() needs cycles or until")
         n = 0
+        gc_control = self.gc_control
+        if gc_control is not None:
+            gc_control.start()
+        if self.pacer.mode is TimeMode.REAL_TIME and self.counters.cycles == 0:
+            # what queued up during the start-up (heartbeats, echoes) is handled before the
+            # schedule starts, not in the first slot's last microseconds
+            self._between_cycles(None)
         try:
             while cycles is None or n < cycles:
                 self.run_cycle()
@@ -397,14 +551,22 @@ class Bridge:
                 if until is not None and until(self):
                     break
         finally:
+            if gc_control is not None:
+                gc_control.stop()
             self.flush_record()
         return n
 
     def flush_record(self) -> None:
         """Record the row of the last cycle if it is still pending (the loop records a cycle's
-        row right after the next SYNC has gone out, while the drive works on it)."""
+        row right after the next SYNC has gone out, while the drive works on it). A recorder
+        that fails (disk full, file gone) is logged and dropped; the loop goes on."""
         if self._record_pending and self.recorder is not None:
-            self.recorder.record(self.controller)
+            try:
+                self.recorder.record(self.controller)
+            except (OSError, ValueError) as exc:
+                self.timing.errors += 1
+                log.error("trace recording failed, recording stops: %s", exc)
+                self.recorder = None
         self._record_pending = False
 
     @property
@@ -414,7 +576,7 @@ class Bridge:
 
     def latencies(self) -> np.ndarray:
         """SYNC-to-set-point latencies (s) collected with ``keep_timing``."""
-        return np.asarray(self.timing.latencies_s if self.timing else [], dtype=float)
+        return self.timing.latencies_s.copy()
 
     def close(self) -> None:
         """Flush and close the recording (the bus itself belongs to the caller)."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import can
@@ -26,9 +26,10 @@ from .cycle import BridgeState, Command
 from .errors import BridgeConfigError
 from .interpolator import Move
 from .layout import CycleLayout
-from .node import Bridge, BridgeConfig
+from .node import DEFAULT_OVERRUN_LIMIT, Bridge, BridgeConfig
 from .objects import params_with_store
 from .params import BridgeParams
+from .realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 from .recorder import BusLog, TraceRecorder, log_channel
 from .scaling import LOAD_INCREMENTS_PER_UNIT
 from .store import ParameterStore
@@ -52,6 +53,8 @@ class RunOptions:
     trace_path: Path | None = None
     bus_log_path: Path | None = None
     time_mode: TimeMode = TimeMode.REAL_TIME
+    realtime: RealTimeOptions = field(default_factory=RealTimeOptions)
+    overrun_limit: int | None = DEFAULT_OVERRUN_LIMIT
 
 
 @dataclass(frozen=True)
@@ -139,6 +142,9 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
         recorder=recorder,
         bus_log=bus_log,
         keep_timing=True,
+        overrun_limit=options.overrun_limit,
+        gc_control=GcBetweenCycles() if options.realtime.freeze_gc else None,
+        busy_poll=options.realtime.busy_poll,
     )
     _command_line_over_store(bridge, options)
     try:
@@ -166,6 +172,8 @@ def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResul
         params.cycle_s,
         refuse=False,
     )
+    for line in apply_realtime(options.realtime):  # after the start-up, before the loop
+        log.warning("real time: %s", line)
     c = bridge.controller
     for move in options.moves:
         c.queue_move(move)
@@ -198,5 +206,5 @@ def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResul
         stop_message=c.stop_message,
         missed_tpdos=bridge.counters.missed,
         late_tpdos=bridge.counters.late,
-        skipped_syncs=timing.skipped_syncs if timing else 0,
+        skipped_syncs=timing.skipped_syncs,
     )

@@ -11,6 +11,12 @@ controller and the heartbeat supervision see (:meth:`Pacer.now`).
 * :class:`RealTimePacer`: SYNC k at ``t0 + k * cycle_s`` of the wall clock (the last
   ``spin_s`` before it polled, not slept); TPDOs accepted until ``deadline_fraction`` of the
   cycle after the SYNC. For hardware.
+
+A SYNC is never sent in a burst to catch up: :meth:`Pacer.slot` gives the loop the first slot
+on the schedule it can still meet. A slot is met when its SYNC leaves no later than
+``late_fraction`` of a cycle after its instant; a slot the loop cannot meet is skipped (the
+loop counts it) and its SYNC is never sent, so the drive sees SYNCs on the schedule's grid
+only, with gaps instead of bunches.
 """
 
 from __future__ import annotations
@@ -29,8 +35,11 @@ WallClock = Callable[[], float]
 DEFAULT_LOCKSTEP_WAIT_S = 0.25
 #: Real time: share of the cycle after SYNC during which TPDOs count for that cycle.
 DEFAULT_DEADLINE_FRACTION = 0.5
-#: Real time: the last part of the wait for a SYNC instant is spent polling instead of
-#: sleeping (a blocking wait wakes 50-100 µs late on Linux), s.
+#: Real time: share of the cycle a SYNC may leave after its instant; later, its slot is
+#: skipped (a late SYNC would shorten the interval to the next one: a bunch).
+DEFAULT_LATE_FRACTION = 0.2
+#: Real time: the last part of the wait for a SYNC instant is spent polling the clock instead
+#: of sleeping (a blocking wait wakes 50-100 µs late on Linux), s; at most 20 % of the cycle.
 DEFAULT_SPIN_S = 0.0002
 
 
@@ -66,6 +75,15 @@ class Pacer(Protocol):
         """Start cycle ``k``: the wall instant SYNC k is due (``None``: send it now)."""
         ...
 
+    def slot(self, k: int) -> tuple[int, float | None]:
+        """The first slot ``>= k`` whose SYNC can still go out on time, and its due instant
+        (``None``: now); starts that cycle like :meth:`begin_cycle`."""
+        ...
+
+    def on_time(self, due: float, sent_s: float) -> bool:
+        """Whether a SYNC leaving at ``sent_s`` still meets its slot ``due``."""
+        ...
+
     def window_end(self, sync_wall_s: float) -> float:
         """Wall instant until which TPDOs of the SYNC sent at ``sync_wall_s`` are awaited."""
         ...
@@ -97,6 +115,13 @@ class LockstepPacer:
         self._k = k
         return None
 
+    def slot(self, k: int) -> tuple[int, float | None]:
+        self._k = k
+        return k, None
+
+    def on_time(self, due: float, sent_s: float) -> bool:
+        return True
+
     def window_end(self, sync_wall_s: float) -> float:
         return sync_wall_s + self.wait_s
 
@@ -112,10 +137,15 @@ class RealTimePacer:
         cycle_s: float,
         deadline_fraction: float = DEFAULT_DEADLINE_FRACTION,
         wall: WallClock = time.monotonic,
-        spin_s: float = DEFAULT_SPIN_S,
+        spin_s: float | None = None,
+        late_fraction: float = DEFAULT_LATE_FRACTION,
     ) -> None:
         self.cycle_s = _positive("cycle_s", cycle_s, 1.0)
         self.deadline_fraction = _positive("deadline_fraction", deadline_fraction, 0.95)
+        self.late_fraction = _positive("late_fraction", late_fraction, 0.5)
+        self.late_s = self.late_fraction * self.cycle_s
+        if spin_s is None:
+            spin_s = min(DEFAULT_SPIN_S, 0.2 * self.cycle_s)
         if not (isinstance(spin_s, int | float) and 0.0 <= spin_s <= self.cycle_s):
             raise BridgeConfigError(f"spin_s = {spin_s!r}: must be in [0, cycle_s] s")
         self.spin_s = float(spin_s)
@@ -129,6 +159,20 @@ class RealTimePacer:
         if self._t0 is None:
             self._t0 = self.wall() - k * self.cycle_s
         return self._t0 + k * self.cycle_s
+
+    def slot(self, k: int) -> tuple[int, float | None]:
+        now = self.wall()
+        if self._t0 is None:
+            self._t0 = now - k * self.cycle_s
+        due = self._t0 + k * self.cycle_s
+        if now - due > self.late_s:  # missed: the next slot still ahead of the clock
+            k = max(k + 1, math.ceil((now - self._t0) / self.cycle_s))
+            due = self._t0 + k * self.cycle_s
+        return k, due
+
+    def on_time(self, due: float, sent_s: float) -> bool:
+        """Whether a SYNC sent at ``sent_s`` met its slot ``due``."""
+        return sent_s - due <= self.late_s
 
     def window_end(self, sync_wall_s: float) -> float:
         return sync_wall_s + self.deadline_fraction * self.cycle_s

@@ -71,6 +71,8 @@ def require_int_at_least(field: str, value: object, low: int) -> int:
 
 def require_finite_input(argument: str, value: object) -> float:
     """Return a per-cycle input as a float, or raise :class:`RegulatorInputError`."""
+    if type(value) is float and math.isfinite(value):  # the per-cycle case: no ABC check
+        return value
     if not (is_real(value) and math.isfinite(value)):  # type: ignore[arg-type]
         raise RegulatorInputError(
             f"{argument} = {value!r}: must be a finite real number", argument=argument, value=value

@@ -13,7 +13,7 @@ from pathlib import Path
 from virtual_bus import cli
 from virtual_bus.progress import Progress
 
-from .common import PAPER_AXIS, regulated_axis
+from .common import PAPER_AXIS, add_realtime_options, realtime_options, regulated_axis
 
 NAME = "bench"
 HELP = "lockstep cycles per second and real-time latency"
@@ -34,6 +34,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skip-lockstep", action="store_true", help="real time only")
     parser.add_argument("--axis", type=Path, default=PAPER_AXIS, help="axis file")
     parser.add_argument("--json", type=Path, help="also write the figures to this file")
+    parser.add_argument(
+        "--rate-hz",
+        type=float,
+        choices=[1000.0, 2000.0],
+        help="real time: SYNC rate (default: the axis' position cycle)",
+    )
+    parser.add_argument(
+        "--drive",
+        choices=["auto", "process", "thread"],
+        default="auto",
+        help="real time: the simulated drive in its own process (udp_multicast in a private "
+        "network namespace; needs root), in a thread of the bench, or auto (process if root)",
+    )
+    parser.add_argument(
+        "--drive-cpu",
+        type=cli.bounded_int(0, 4095),
+        metavar="N",
+        help="pin the drive process to CPU N (default with --cpu: another CPU)",
+    )
+    add_realtime_options(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,5 +74,9 @@ def run(args: argparse.Namespace) -> int:
         seconds=None if args.skip_realtime else args.seconds,
         lockstep=not args.skip_lockstep,
         json_path=args.json,
+        rate_hz=args.rate_hz,
+        rt=realtime_options(args),
+        drive=args.drive,
+        drive_cpu=args.drive_cpu,
     )
     return 0

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from plant_sim.axis import AxisConfig, load_axis
 from regulator import RegulatorConfig
 from regulator.errors import RegulatorError
 from virtual_bus import cli
+
+from ..realtime import RealTimeOptions
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
@@ -28,3 +31,41 @@ def regulated_axis(path: Path) -> AxisConfig:
 def default_store_path(axis_path: Path) -> Path:
     """The bridge's parameter store beside its axis file: ``AXIS.bridge-store.json``."""
     return axis_path.with_name(f"{axis_path.stem}.bridge-store.json")
+
+
+def add_realtime_options(parser: argparse.ArgumentParser) -> None:
+    """--rt-priority, --cpu, --lock-memory, --freeze-gc, --busy-poll (bridge.realtime; all
+    off by default; refused in one line, exit 1, where the OS does not allow them)."""
+    parser.add_argument(
+        "--rt-priority",
+        type=cli.bounded_int(1, 99),
+        metavar="N",
+        help="run the loop under SCHED_FIFO at priority N (1..99; needs root/CAP_SYS_NICE)",
+    )
+    parser.add_argument(
+        "--cpu", type=cli.bounded_int(0, 4095), metavar="N", help="pin the loop to CPU N"
+    )
+    parser.add_argument(
+        "--lock-memory", action="store_true", help="mlockall(MCL_CURRENT|MCL_FUTURE)"
+    )
+    parser.add_argument(
+        "--freeze-gc",
+        action="store_true",
+        help="freeze the garbage collector after start-up; collect only between cycles",
+    )
+    parser.add_argument(
+        "--busy-poll",
+        action="store_true",
+        help="poll the bus while waiting for the TPDOs instead of blocking (for an isolated CPU)",
+    )
+
+
+def realtime_options(args: argparse.Namespace) -> RealTimeOptions:
+    """The real-time options of :func:`add_realtime_options` as :class:`RealTimeOptions`."""
+    return RealTimeOptions(
+        rt_priority=args.rt_priority,
+        cpu=args.cpu,
+        lock_memory=args.lock_memory,
+        freeze_gc=args.freeze_gc,
+        busy_poll=args.busy_poll,
+    )

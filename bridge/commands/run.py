@@ -10,10 +10,15 @@ from virtual_bus import BusConfig, cli
 from .. import od as objdict
 from ..errors import BridgeError
 from ..interpolator import Move, load_move_file, parse_move
-from ..node import BridgeConfig
+from ..node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
 from ..profile import load_profile
 from ..timing import TimeMode
-from .common import default_store_path, regulated_axis
+from .common import (
+    add_realtime_options,
+    default_store_path,
+    realtime_options,
+    regulated_axis,
+)
 
 NAME = "run"
 HELP = "run the bridge against a drive on a CAN interface (real time)"
@@ -94,6 +99,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="realtime",
         help="realtime (default; hardware) or lockstep (simulated drives)",
     )
+    add_realtime_options(parser)
+    parser.add_argument(
+        "--overrun-limit",
+        type=cli.count,
+        default=DEFAULT_OVERRUN_LIMIT,
+        metavar="N",
+        help=f"stop the axis after N overrunning cycles in a row (default {DEFAULT_OVERRUN_LIMIT})",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -119,6 +132,8 @@ def run(args: argparse.Namespace) -> int:
         trace_path=args.trace,
         bus_log_path=args.bus_log,
         time_mode=TimeMode(args.clock),
+        realtime=realtime_options(args),
+        overrun_limit=args.overrun_limit,
     )
     if not moves and args.seconds is None:
         raise cli.UsageError("give --move, --move-file or --seconds (otherwise it never ends)")

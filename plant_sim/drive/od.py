@@ -22,6 +22,7 @@ round() is Python's: to the nearest integer, ties to even. wrap32 is two's compl
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -348,6 +349,24 @@ class ObjectTable:
         """Current value: live getter, else stored."""
         reader = self._readers.get(key)
         return reader() if reader is not None else self._values[key]
+
+    def getter(self, key: ObjectKey) -> Callable[[], int]:
+        """A function giving the current value of ``key`` like :meth:`read` (for the PDO
+        engine's compiled mappings)."""
+        reader = self._readers.get(key)
+        if reader is not None:
+            return reader
+        values = self._values
+        return lambda: values[key]
+
+    def struct_format(self, key: ObjectKey) -> str | None:
+        """The ``struct`` format of ``key``'s data type without byte order (e.g. ``"i"``),
+        or None for types struct cannot hold (24-, 40-, 48-, 56-bit integers, strings)."""
+        var = self._vars[key]
+        packer = var.STRUCT_TYPES.get(var.data_type)
+        if not isinstance(packer, struct.Struct):
+            return None
+        return packer.format.lstrip("<>=!@")
 
     def check_range(self, key: ObjectKey, value: int) -> None:
         var = self._vars[key]

@@ -20,11 +20,18 @@ Configuration rules (CiA 301, 7.5.2.35-7.5.2.38; abort codes as CANopenNode / Le
   RPDO can write / a TPDO can read, with its full bit length (0604 0041); writing sub 0 = n
   checks entries 1..n and their total length <= 64 bits (0604 0042). Writing a value equal to
   the present one is always accepted (nothing changes).
+
+Per SYNC the engine works from compiled plans (:class:`_Plan`): for each valid PDO its CAN id,
+transmission type, one precompiled ``struct`` for the whole payload and the getters of the
+mapped objects, built on first use and dropped whenever a PDO parameter changes (the write
+hooks above, :meth:`PdoEngine.reset`). Mappings with a type ``struct`` cannot hold (24-bit
+integers, ...) fall back to object-by-object encoding.
 """
 
 from __future__ import annotations
 
 import logging
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
@@ -126,6 +133,19 @@ class _Channel:
         return f"{self.kind.value}{self.number}"
 
 
+@dataclass(frozen=True)
+class _Plan:
+    """A valid PDO compiled for the cycle (see the module docstring)."""
+
+    channel: _Channel
+    can_id: int
+    transmission_type: int
+    keys: tuple[ObjectKey, ...]
+    getters: tuple[Callable[[], int], ...]
+    layout: struct.Struct | None  # None: encode object by object
+    size: int  # bytes of the mapping
+
+
 class PdoEngine:
     """The 4 RPDOs and 4 TPDOs of the drive.
 
@@ -150,6 +170,8 @@ class PdoEngine:
         self._tx = [_Channel(PdoKind.TRANSMIT, n + 1) for n in range(PDO_CHANNELS)]
         self._subscribed: dict[int, _Channel] = {}
         self._pending: dict[int, bytes] = {}  # RPDO number -> data received since last SYNC
+        self._tx_plans: tuple[_Plan, ...] | None = None
+        self._rx_plans: dict[int, _Plan] | None = None
         for ch in self._rx + self._tx:
             table.on((ch.comm, 1), validate=self._cob_id_validator(ch), changed=self._changed(ch))
             table.on((ch.comm, 2), validate=self._type_validator(ch), changed=self._changed(ch))
@@ -311,6 +333,7 @@ class PdoEngine:
 
     def _changed(self, ch: _Channel) -> Callable[[int], None]:
         def changed(_value: int) -> None:
+            self._tx_plans = self._rx_plans = None
             ch.sync_count = 0
             ch.last_sent = None
             if ch.kind is PdoKind.RECEIVE:
@@ -318,6 +341,34 @@ class PdoEngine:
                 self.refresh_subscriptions()
 
         return changed
+
+    # --- compiled plans ----------------------------------------------------------------------
+    def _plan(self, ch: _Channel) -> _Plan | None:
+        if not self.is_valid(ch):
+            return None
+        mapping = self.mapping(ch)
+        if not mapping:
+            return None
+        keys = tuple(m.key for m in mapping)
+        formats = [self._table.struct_format(k) for k in keys]
+        layout = None
+        if all(f is not None for f in formats):
+            layout = struct.Struct("<" + "".join(f for f in formats if f is not None))
+            if layout.size * 8 != sum(m.bits for m in mapping):
+                layout = None
+        return _Plan(
+            ch,
+            self.can_id(ch),
+            self._table.value((ch.comm, 2)),
+            keys,
+            tuple(self._table.getter(k) for k in keys),
+            layout,
+            sum(m.bits for m in mapping) // 8,
+        )
+
+    def _compile(self) -> None:
+        self._tx_plans = tuple(p for ch in self._tx if (p := self._plan(ch)) is not None)
+        self._rx_plans = {ch.number: p for ch in self._rx if (p := self._plan(ch)) is not None}
 
     # --- runtime -------------------------------------------------------------------------------
     def refresh_subscriptions(self) -> None:
@@ -339,6 +390,7 @@ class PdoEngine:
 
     def reset(self) -> None:
         """After a communication reset: counters, pending data and subscriptions anew."""
+        self._tx_plans = self._rx_plans = None
         for ch in self._rx + self._tx:
             ch.sync_count = 0
             ch.last_sent = None
@@ -362,29 +414,48 @@ class PdoEngine:
         called before the objects of each accepted RPDO are written."""
         result = LatchResult()
         pending, self._pending = self._pending, {}
+        if not pending:
+            return result
+        if self._rx_plans is None:
+            self._compile()
+        plans = self._rx_plans
+        assert plans is not None
+        write = self._table.write
         for number, data in sorted(pending.items()):
-            ch = self._rx[number - 1]
-            mapping = self.mapping(ch)
-            if not self.is_valid(ch) or not mapping:
+            plan = plans.get(number)
+            if plan is None:
                 continue
-            need = sum(m.bits for m in mapping) // 8
-            if len(data) < need:
-                logger.warning("%s: %d bytes received, mapping needs %d", ch.name, len(data), need)
-                result.short_frames.append(self.can_id(ch))
+            if len(data) < plan.size:
+                logger.warning(
+                    "%s: %d bytes received, mapping needs %d",
+                    plan.channel.name,
+                    len(data),
+                    plan.size,
+                )
+                result.short_frames.append(plan.can_id)
                 continue
             if before_apply is not None:
                 before_apply()
-            offset = 0
-            for obj in mapping:
-                size = obj.bits // 8
-                value = self._table.decode(obj.key, data[offset : offset + size])
-                offset += size
+            if plan.layout is not None:
+                values = plan.layout.unpack_from(data)
+            else:
+                values = self._decode_each(plan, data)
+            for key, value in zip(plan.keys, values, strict=True):
                 try:
-                    self._table.write(obj.key, value)
+                    write(key, value)
                 except DriveSdoAbort as exc:
-                    logger.warning("%s: %s", ch.name, exc)
+                    logger.warning("%s: %s", plan.channel.name, exc)
             result.applied += 1
         return result
+
+    def _decode_each(self, plan: _Plan, data: bytes) -> list[int]:
+        values = []
+        offset = 0
+        for key in plan.keys:
+            size = self._table.bit_length(key) // 8
+            values.append(self._table.decode(key, data[offset : offset + size]))
+            offset += size
+        return values
 
     def frame(self, ch: _Channel) -> bytes:
         """The TPDO's data with the values of its mapped objects now."""
@@ -395,22 +466,30 @@ class PdoEngine:
     def transmit(self) -> int:
         """At SYNC: send the valid TPDOs that are due (type n: every n-th SYNC; type 0: when
         the data changed). Returns the number of frames sent."""
+        if self._tx_plans is None:
+            self._compile()
+        plans = self._tx_plans
+        assert plans is not None
         sent = 0
-        for ch in self._tx:
-            if not self.is_valid(ch) or not self._table.value((ch.map, 0)):
-                continue
-            trans_type = self._table.value((ch.comm, 2))
-            if trans_type == 0:
-                data = self.frame(ch)
+        send = self._send
+        for plan in plans:
+            ch = plan.channel
+            if plan.transmission_type == 0:
+                data = self._plan_frame(plan)
                 if data == ch.last_sent:
                     continue
                 ch.last_sent = data
             else:
                 ch.sync_count += 1
-                if ch.sync_count < trans_type:
+                if ch.sync_count < plan.transmission_type:
                     continue
                 ch.sync_count = 0
-                data = self.frame(ch)
-            self._send(self.can_id(ch), data)
+                data = self._plan_frame(plan)
+            send(plan.can_id, data)
             sent += 1
         return sent
+
+    def _plan_frame(self, plan: _Plan) -> bytes:
+        if plan.layout is not None:
+            return plan.layout.pack(*[get() for get in plan.getters])
+        return self.frame(plan.channel)

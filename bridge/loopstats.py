@@ -1,0 +1,123 @@
+"""Timing of the loop, per cycle, in preallocated arrays (no list grows on the cycle path).
+
+Per cycle (wall clock, s): how late the SYNC left against its slot on the schedule, SYNC sent
+-> set point (RPDO) sent, and the bridge's own share of it (both TPDOs in -> RPDO sent).
+Counts: SYNC slots skipped, cycles that overran (a slot after them was skipped) and the
+longest run of them, frames the between-cycles service had to drop, errors caught on the
+cycle path. :func:`summary` turns them into the figures of ``python -m bridge bench``:
+median / p99 / max, a histogram and the jitter of SYNC against its schedule.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+#: Histogram bin edges of the latency figures, µs (the last bin is open).
+HISTOGRAM_EDGES_US = (0, 50, 100, 150, 200, 300, 500, 1000, 2000, 5000)
+
+
+class Timing:
+    """Per-cycle timing of the loop (see the module docstring). ``capacity``: cycles kept
+    (beyond it the arrays double: a rare allocation, never in a steady run whose length is
+    known in advance)."""
+
+    def __init__(self, capacity: int = 65536) -> None:
+        capacity = max(16, capacity)
+        # written now (np.full, not np.zeros), so no page is first touched in a cycle
+        self._late = np.full(capacity, 0.0)
+        self._latency = np.full(capacity, 0.0)
+        self._compute = np.full(capacity, 0.0)
+        self.n = 0
+        self.skipped_syncs = 0
+        self.overruns = 0
+        self.consecutive_overruns = 0
+        self.max_consecutive_overruns = 0
+        self.service_dropped = 0  # frames between cycles dropped: the service ring was full
+        self.errors = 0  # exceptions caught on the cycle path (logged)
+        #: cycle numbers (SYNCs sent before) of the first overruns, for diagnosis
+        self.first_overruns: list[int] = []
+
+    def record(self, sync_late_s: float, latency_s: float, compute_s: float) -> None:
+        i = self.n
+        if i == self._late.size:
+            self._late = np.concatenate((self._late, np.zeros(i)))
+            self._latency = np.concatenate((self._latency, np.zeros(i)))
+            self._compute = np.concatenate((self._compute, np.zeros(i)))
+        self._late[i] = sync_late_s
+        self._latency[i] = latency_s
+        self._compute[i] = compute_s
+        self.n = i + 1
+
+    def overran(self, skipped: int) -> int:
+        """Account the slots skipped before this SYNC; returns the overruns in a row."""
+        if skipped:
+            if len(self.first_overruns) < 16:
+                self.first_overruns.append(self.n)
+            self.skipped_syncs += skipped
+            self.overruns += 1
+            self.consecutive_overruns += 1
+            if self.consecutive_overruns > self.max_consecutive_overruns:
+                self.max_consecutive_overruns = self.consecutive_overruns
+        else:
+            self.consecutive_overruns = 0
+        return self.consecutive_overruns
+
+    @property
+    def sync_late_s(self) -> np.ndarray:
+        return self._late[: self.n]
+
+    @property
+    def latencies_s(self) -> np.ndarray:
+        return self._latency[: self.n]
+
+    @property
+    def compute_s(self) -> np.ndarray:
+        return self._compute[: self.n]
+
+
+def _figures(values_s: np.ndarray, name: str) -> dict[str, float]:
+    us = values_s * 1e6
+    if us.size == 0:
+        return {f"{name}_median": 0.0, f"{name}_p99": 0.0, f"{name}_max": 0.0}
+    return {
+        f"{name}_median": float(np.median(us)),
+        f"{name}_p99": float(np.percentile(us, 99)),
+        f"{name}_max": float(np.max(us)),
+    }
+
+
+def histogram(values_s: np.ndarray) -> dict[str, int]:
+    """Counts per bin of :data:`HISTOGRAM_EDGES_US` ("0-50", ..., "5000+")."""
+    us = values_s * 1e6
+    edges = np.asarray((*HISTOGRAM_EDGES_US, np.inf))
+    counts, _ = np.histogram(us, bins=edges)
+    labels = [
+        f"{int(lo)}-{int(hi)}" if np.isfinite(hi) else f"{int(lo)}+"
+        for lo, hi in itertools.pairwise(edges)
+    ]
+    return {label: int(c) for label, c in zip(labels, counts, strict=True)}
+
+
+def summary(timing: Timing, cycle_s: float) -> dict[str, object]:
+    """Figures of a run: latency (SYNC -> RPDO), bridge compute (TPDOs in -> RPDO), SYNC
+    lateness against the schedule and its jitter (standard deviation and peak-to-peak of the
+    SYNC intervals minus the cycle), histograms, counts."""
+    late = timing.sync_late_s
+    out: dict[str, object] = {}
+    out.update(_figures(timing.latencies_s, "latency_us"))
+    out.update(_figures(timing.compute_s, "compute_us"))
+    out.update(_figures(late, "sync_late_us"))
+    out["sync_jitter_us_std"] = float(np.std(late) * 1e6) if late.size else 0.0
+    out["sync_jitter_us_peak_to_peak"] = float(np.ptp(late) * 1e6) if late.size else 0.0
+    out["latency_histogram_us"] = histogram(timing.latencies_s)
+    out["sync_late_histogram_us"] = histogram(late)
+    out["skipped_syncs"] = timing.skipped_syncs
+    out["overruns"] = timing.overruns
+    out["max_consecutive_overruns"] = timing.max_consecutive_overruns
+    out["first_overrun_cycles"] = list(timing.first_overruns)
+    out["service_dropped"] = timing.service_dropped
+    out["loop_errors"] = timing.errors
+    out["cycle_us"] = cycle_s * 1e6
+    return out
