@@ -13,7 +13,7 @@ from pathlib import Path
 from virtual_bus import cli
 from virtual_bus.progress import Progress
 
-from .common import PAPER_AXIS, add_realtime_options, realtime_options, regulated_axis
+from .common import PAPER_AXIS, add_realtime_options, realtime_options, simulated_axis_file
 
 NAME = "bench"
 HELP = "lockstep cycles per second and real-time latency"
@@ -61,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.skip_lockstep and args.skip_realtime:
         raise cli.UsageError("--skip-lockstep and --skip-realtime together leave nothing to run")
+    axis = simulated_axis_file(args.axis)  # refused before anything is said or run
     progress = Progress(f"bridge {NAME}", quiet=args.quiet)
     stages = []
     if not args.skip_lockstep:
@@ -69,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         stages.append(f"real time: {args.seconds:g} s of SYNC from the wall clock")
     progress.stage("; then ".join(stages) + " (results print as each part ends)")
     run_bench(
-        regulated_axis(args.axis),
+        axis,
         cycles=args.cycles,
         seconds=None if args.skip_realtime else args.seconds,
         lockstep=not args.skip_lockstep,

@@ -25,7 +25,7 @@ from ..model import KernelOptions, default_substeps
 from ..reference import simulate_reference
 from ..report import LIMIT_CYCLE_VISCOUS
 from ..scenarios import SectionX, run_section_x
-from .common import add_axis_argument, read_axis
+from .common import add_axis_argument, regulated_axis
 
 NAME = "bench"
 HELP = "kernel throughput vs the solve_ivp reference, peak memory (and --all: diagnosis)"
@@ -69,7 +69,7 @@ def _lines(results: dict[str, object], prefix: str = "") -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     progress = Progress(f"plant_sim {NAME}", quiet=args.quiet)
-    axis = read_axis(args.axis).with_values({"friction.viscous": LIMIT_CYCLE_VISCOUS})
+    axis = regulated_axis(args.axis).with_values({"friction.viscous": LIMIT_CYCLE_VISCOUS})
     scenario = SectionX()
     sim_s = scenario.end_s
     progress.stage("load the compiled kernel")

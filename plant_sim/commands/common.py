@@ -9,7 +9,11 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from regulator import RegulatorConfig
+from regulator.errors import RegulatorError
+
 from ..axis import AxisConfig, load_axis
+from ..errors import ScenarioError
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
@@ -31,6 +35,18 @@ def read_axis(path: Path, position_cycle_s: float | None = None) -> AxisConfig:
     axis = load_axis(path)
     if position_cycle_s is not None:
         axis = axis.with_values({"control.position_cycle": position_cycle_s})
+    return axis
+
+
+def regulated_axis(path: Path, position_cycle_s: float | None = None) -> AxisConfig:
+    """:func:`read_axis` for the commands that run the regulator (section X): refused in one
+    line (exit 2) naming the file when the regulator cannot run on it, e.g. a position cycle
+    above section VII's sampling limit."""
+    axis = read_axis(path, position_cycle_s)
+    try:
+        RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
+    except RegulatorError as exc:
+        raise ScenarioError(f"{path}: the regulator cannot run on this axis: {exc}") from None
     return axis
 
 

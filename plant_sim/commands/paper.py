@@ -27,7 +27,7 @@ from ..report import (
 )
 from ..scenarios import SectionX, run_section_x
 from ..trace import Trace
-from .common import add_axis_argument, read_axis
+from .common import add_axis_argument, regulated_axis
 
 NAME = "paper"
 HELP = "reproduce the paper's section X (Fig. 8, Fig. 9, summary.json, traces)"
@@ -56,7 +56,7 @@ def _runs(axis: AxisConfig, progress: Progress, label: str) -> dict[str, Trace]:
 
 def run(args: argparse.Namespace) -> int:
     progress = Progress(f"plant_sim {NAME}", quiet=args.quiet)
-    axis = read_axis(args.axis, args.position_cycle)
+    axis = regulated_axis(args.axis, args.position_cycle)
     scenario = SectionX()
     runs = _runs(axis, progress, f"axis as given ({args.axis})")
     extra: dict[str, object] = {"axis_file": str(args.axis)}
