@@ -180,6 +180,9 @@ class Control:
     torque_limit: float | None = None  # N m; None: no saturation
     current_lag: float | None = None  # s, first-order lag; None: ideal current loop
     delay: float | None = None  # s, dead time set point -> torque; None: none
+    # s, the load measuring system's sample time minus the motor's (positive: the load
+    # position is older); None: both sampled together
+    sensor_time_offset: float | None = None
     position_cycle: float = 0.001  # s
     speed_cycle: float = 0.000125  # s
 
@@ -190,6 +193,7 @@ class Control:
         _check_range("control.torque_limit", self.torque_limit, low=0.0, low_open=True)
         _check_range("control.current_lag", self.current_lag, low=0.0, high=1.0)
         _check_range("control.delay", self.delay, low=0.0, high=0.1)
+        _check_range("control.sensor_time_offset", self.sensor_time_offset, low=-0.05, high=0.05)
         _check_range("control.speed_cycle", self.speed_cycle, low=1e-6, high=0.1)
         _check_range("control.position_cycle", self.position_cycle, low=1e-6, high=1.0)
         ratio = self.position_cycle / self.speed_cycle

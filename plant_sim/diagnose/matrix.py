@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass
 
 from .effects import Effect, effects_in
 from .engine import DiagnosisOptions, diagnose
-from .synthetic import Case, concealment, generate, test_set
+from .synthetic import Case, Plant, concealment, generate, kernel_plant, test_set
 
 DEFAULT_OPTIONS = DiagnosisOptions()
 
@@ -42,8 +42,11 @@ class CaseResult:
     n_samples: int
 
 
-def run_case(case: Case, options: DiagnosisOptions = DEFAULT_OPTIONS) -> CaseResult:
-    gen = generate(case)
+def run_case(
+    case: Case, options: DiagnosisOptions = DEFAULT_OPTIONS, plant: Plant = kernel_plant
+) -> CaseResult:
+    """Generate ``case`` with ``plant`` (the recording's simulator) and diagnose it."""
+    gen = generate(case, plant)
     t0 = time.perf_counter()
     d = diagnose(gen.recording, gen.nominal, options=options)
     secs = time.perf_counter() - t0
@@ -65,7 +68,7 @@ def run_case(case: Case, options: DiagnosisOptions = DEFAULT_OPTIONS) -> CaseRes
         exact=sorted(named) == expected,
         expected=expected,
         ambiguous_with=[a.alternative.value for a in d.ambiguous],
-        concealment=concealment(gen),
+        concealment=concealment(gen, plant),
         fit_before={k: v.fit_percent for k, v in d.fit_before.items()},
         fit_refit={k: v.fit_percent for k, v in d.fit_refit.items()},
         fit_after={k: v.fit_percent for k, v in d.fit_after.items()},
@@ -79,10 +82,13 @@ def run_matrix(
     cases: Sequence[Case],
     options: DiagnosisOptions = DEFAULT_OPTIONS,
     on_result: Callable[[CaseResult], None] | None = None,
+    plant: Plant = kernel_plant,
 ) -> list[CaseResult]:
+    """Diagnose every case; ``plant`` simulates the recordings (default: this project's
+    kernel; the independent plant of tests/independent_plant runs the same matrix)."""
     results = []
     for case in cases:
-        r = run_case(case, options)
+        r = run_case(case, options, plant)
         results.append(r)
         if on_result is not None:
             on_result(r)
@@ -102,6 +108,7 @@ SHORT = {
     "periodic_disturbance": "per",
     "torque_saturation": "sat",
     "time_delay": "dly",
+    "sensor_time_offset": "sto",
 }
 
 
@@ -177,6 +184,18 @@ def cases_markdown(results: Sequence[CaseResult]) -> str:
     return "\n".join(lines)
 
 
+def _load_plant(spec: str) -> Plant:
+    import importlib
+
+    module, sep, name = spec.partition(":")
+    if not sep or not module or not name:
+        raise ValueError("no ':' between module and function")
+    func = getattr(importlib.import_module(module), name)
+    if not callable(func):
+        raise ValueError(f"{name} is not callable")
+    return func
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m plant_sim.diagnose.matrix",
@@ -186,7 +205,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=25.0, help="seconds per recording")
     parser.add_argument("--cases", nargs="*", default=None, help="case names to run (default all)")
     parser.add_argument("--json", default=None, help="also write the results as JSON lines here")
+    parser.add_argument(
+        "--plant",
+        default=None,
+        metavar="MODULE:FUNCTION",
+        help="simulator of the recordings, a function (axis, references) -> trace "
+        "(default: this project's kernel)",
+    )
     args = parser.parse_args(argv)
+    plant = kernel_plant
+    if args.plant:
+        try:
+            plant = _load_plant(args.plant)
+        except (ImportError, AttributeError, ValueError) as exc:
+            print(f"--plant {args.plant}: {exc}; expected MODULE:FUNCTION", file=sys.stderr)
+            return 2
     if not 5.0 <= args.duration <= 600.0:
         print(f"--duration {args.duration}: allowed 5..600 s", file=sys.stderr)
         return 2
@@ -207,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
             sink.flush()
 
     try:
-        results = run_matrix(cases, on_result=on_result)
+        results = run_matrix(cases, on_result=on_result, plant=plant)
     finally:
         if sink is not None:
             sink.close()
