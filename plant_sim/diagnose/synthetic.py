@@ -26,7 +26,7 @@ the motor encoder, a linear scale recorded alongside).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -419,18 +419,29 @@ def generate(case: Case) -> GeneratedCase:
     )
 
 
-def concealment(gen: GeneratedCase) -> dict[str, float]:
+#: A plant as a function: noise-free closed loop of an axis on references (the recording's
+#: hidden truth). :func:`truth_simulator` is the compiled kernel's; the test suite has an
+#: independent one (tests/independent_plant).
+Simulator = Callable[[AxisConfig, References], Trace]
+
+
+def truth_simulator(axis: AxisConfig, refs: References) -> Trace:
+    """The kernel with twice the default mechanics substeps (what :func:`generate` uses)."""
+    return simulate(axis, refs, None, KernelOptions(substeps=2 * default_substeps(axis)))
+
+
+def concealment(gen: GeneratedCase, simulator: Simulator | None = None) -> dict[str, float]:
     """How hidden the effect is: per recorded signal, RMS of (truth − truth without the
     effect), noise-free and on the same inputs, divided by the measurement-noise std
     (``snr_<signal>``) and by the signal's spread (``share_<signal>``; for positions the spread
-    of the following error). An empty dict for a case with nothing left out."""
+    of the following error). An empty dict for a case with nothing left out. ``simulator``:
+    the plant that made the recording (default :func:`truth_simulator`)."""
     if gen.case.effect is None:
         return {}
     fam = FAMILIES[gen.case.family]
-    options = KernelOptions(substeps=2 * default_substeps(gen.truth))
-    with_e = simulate(gen.truth, gen.references, None, options)
-    opts0 = KernelOptions(substeps=2 * default_substeps(gen.truth_without))
-    without = simulate(gen.truth_without, gen.references, None, opts0)
+    sim = simulator or truth_simulator
+    with_e = sim(gen.truth, gen.references)
+    without = sim(gen.truth_without, gen.references)
     out: dict[str, float] = {}
     ref = with_e["position_reference"]
     kr = gen.truth.transmission_ratio
