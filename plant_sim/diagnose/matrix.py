@@ -1,25 +1,71 @@
 """Confusion matrix and fit improvements of the diagnosis on the concealed test set.
 
-``python -m plant_sim.diagnose.matrix [--seed 2] [--duration 25] [--cases NAME ...]`` runs
-:func:`run_matrix` on :func:`plant_sim.diagnose.synthetic.test_set` and prints the markdown
-tables (confusion matrix, per-case results with concealment and fit before/after, timings).
+``python -m plant_sim.diagnose.matrix [--plant kernel|independent] [--seed 2] [--duration 25]
+[--cases NAME ...] [--out DIR]`` runs :func:`run_matrix` on
+:func:`plant_sim.diagnose.synthetic.test_set` and prints the markdown tables (confusion
+matrix, per-case results with concealment and fit before/after, timings); ``--out`` also
+writes them to ``DIR/matrix_<plant>_seed<S>.md`` (and the results as JSON lines).
+
+The plant that makes the recordings is a :class:`MatrixPlant`: ``kernel`` is this package's
+compiled kernel (:func:`synthetic.generate`), ``independent`` the test suite's independent
+plant (``tests/independent_plant``: other integrator, friction and contact laws, sensors,
+current loop and noise), found relative to this checkout.
 The full set takes several minutes (one diagnosis per case); the test suite runs a few cases.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 from .effects import Effect, effects_in
 from .engine import DiagnosisOptions, diagnose
-from .synthetic import Case, Plant, concealment, generate, kernel_plant, test_set
+from .synthetic import (
+    Case,
+    GeneratedCase,
+    Simulator,
+    concealment,
+    generate,
+    test_set,
+    truth_simulator,
+)
 
 DEFAULT_OPTIONS = DiagnosisOptions()
+
+
+@dataclass(frozen=True)
+class MatrixPlant:
+    """What makes the recordings: ``generate`` turns a case into a recording, nominal file and
+    hidden truth; ``simulator`` is the same plant noise-free (for the concealment measure)."""
+
+    name: str
+    generate: Callable[[Case], GeneratedCase]
+    simulator: Simulator
+
+
+KERNEL_PLANT = MatrixPlant("kernel", generate, truth_simulator)
+PLANTS = ("kernel", "independent")
+
+
+def load_plant(name: str) -> MatrixPlant:
+    """``kernel`` or ``independent`` (imported from this checkout's tests/ directory)."""
+    if name == "kernel":
+        return KERNEL_PLANT
+    if name != "independent":
+        raise ValueError(f"plant {name!r}: allowed {PLANTS}")
+    tests_dir = Path(__file__).resolve().parents[2] / "tests"
+    if not (tests_dir / "independent_plant").is_dir():
+        raise ValueError(f"plant 'independent': {tests_dir / 'independent_plant'} not found")
+    if str(tests_dir) not in sys.path:
+        sys.path.insert(0, str(tests_dir))
+    recording = importlib.import_module("independent_plant.recording")
+    return MatrixPlant("independent", recording.generate, recording.simulator)
 
 
 @dataclass(frozen=True)
@@ -43,10 +89,9 @@ class CaseResult:
 
 
 def run_case(
-    case: Case, options: DiagnosisOptions = DEFAULT_OPTIONS, plant: Plant = kernel_plant
+    case: Case, options: DiagnosisOptions = DEFAULT_OPTIONS, plant: MatrixPlant = KERNEL_PLANT
 ) -> CaseResult:
-    """Generate ``case`` with ``plant`` (the recording's simulator) and diagnose it."""
-    gen = generate(case, plant)
+    gen = plant.generate(case)
     t0 = time.perf_counter()
     d = diagnose(gen.recording, gen.nominal, options=options)
     secs = time.perf_counter() - t0
@@ -68,7 +113,7 @@ def run_case(
         exact=sorted(named) == expected,
         expected=expected,
         ambiguous_with=[a.alternative.value for a in d.ambiguous],
-        concealment=concealment(gen, plant),
+        concealment=concealment(gen, plant.simulator),
         fit_before={k: v.fit_percent for k, v in d.fit_before.items()},
         fit_refit={k: v.fit_percent for k, v in d.fit_refit.items()},
         fit_after={k: v.fit_percent for k, v in d.fit_after.items()},
@@ -82,10 +127,8 @@ def run_matrix(
     cases: Sequence[Case],
     options: DiagnosisOptions = DEFAULT_OPTIONS,
     on_result: Callable[[CaseResult], None] | None = None,
-    plant: Plant = kernel_plant,
+    plant: MatrixPlant = KERNEL_PLANT,
 ) -> list[CaseResult]:
-    """Diagnose every case; ``plant`` simulates the recordings (default: this project's
-    kernel; the independent plant of tests/independent_plant runs the same matrix)."""
     results = []
     for case in cases:
         r = run_case(case, options, plant)
@@ -184,45 +227,43 @@ def cases_markdown(results: Sequence[CaseResult]) -> str:
     return "\n".join(lines)
 
 
-def _load_plant(spec: str) -> Plant:
-    import importlib
-
-    module, sep, name = spec.partition(":")
-    if not sep or not module or not name:
-        raise ValueError("no ':' between module and function")
-    func = getattr(importlib.import_module(module), name)
-    if not callable(func):
-        raise ValueError(f"{name} is not callable")
-    return func
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m plant_sim.diagnose.matrix",
         description="Run the diagnosis on the concealed test set and print markdown tables.",
     )
+    parser.add_argument(
+        "--plant",
+        default="kernel",
+        help="plant that makes the recordings: kernel (default) or independent",
+    )
     parser.add_argument("--seed", type=int, default=2, help="test-set seed (default 2)")
+    parser.add_argument("--out", default=None, help="also write the markdown (and JSON) here")
     parser.add_argument("--duration", type=float, default=25.0, help="seconds per recording")
     parser.add_argument("--cases", nargs="*", default=None, help="case names to run (default all)")
     parser.add_argument("--json", default=None, help="also write the results as JSON lines here")
-    parser.add_argument(
-        "--plant",
-        default=None,
-        metavar="MODULE:FUNCTION",
-        help="simulator of the recordings, a function (axis, references) -> trace "
-        "(default: this project's kernel)",
-    )
     args = parser.parse_args(argv)
-    plant = kernel_plant
-    if args.plant:
-        try:
-            plant = _load_plant(args.plant)
-        except (ImportError, AttributeError, ValueError) as exc:
-            print(f"--plant {args.plant}: {exc}; expected MODULE:FUNCTION", file=sys.stderr)
-            return 2
     if not 5.0 <= args.duration <= 600.0:
         print(f"--duration {args.duration}: allowed 5..600 s", file=sys.stderr)
         return 2
+    if args.plant not in PLANTS:
+        print(f"--plant {args.plant!r}: allowed {', '.join(PLANTS)}", file=sys.stderr)
+        return 2
+    try:
+        plant = load_plant(args.plant)
+    except ValueError as exc:
+        print(f"--plant: {exc}", file=sys.stderr)
+        return 2
+    out_dir = Path(args.out) if args.out else None
+    if out_dir is not None:
+        try:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            print(f"--out {args.out}: cannot create ({exc})", file=sys.stderr)
+            return 2
+        stem = out_dir / f"matrix_{args.plant}_seed{args.seed}"
+        if args.json is None:
+            args.json = str(stem) + ".jsonl"
     cases = test_set(seed=args.seed, duration_s=args.duration)
     if args.cases:
         known = {c.name for c in cases}
@@ -244,9 +285,16 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if sink is not None:
             sink.close()
-    print(confusion_markdown(results))
-    print()
-    print(cases_markdown(results))
+    text = (
+        f"Plant: {plant.name}, seed {args.seed}, {args.duration:g} s per recording.\n\n"
+        + confusion_markdown(results)
+        + "\n\n"
+        + cases_markdown(results)
+        + "\n"
+    )
+    print(text, end="")
+    if out_dir is not None:
+        (out_dir / f"matrix_{args.plant}_seed{args.seed}.md").write_text(text, encoding="utf-8")
     return 0
 
 

@@ -342,7 +342,7 @@ class GeneratedCase:
     process_nm: np.ndarray
 
 
-def _peak_demand(axis: AxisConfig, refs: References, plant: Plant) -> float:
+def _peak_demand(axis: AxisConfig, refs: References, plant: Simulator) -> float:
     """Peak |motor torque| without a limit (the fast moves all accelerate at the axis's
     largest acceleration, so a limit just below it clips each of them a little)."""
     free = axis.with_values({"control.torque_limit": None})
@@ -368,19 +368,19 @@ def _strip(axis: AxisConfig, effect: Effect, truth_base: AxisConfig) -> AxisConf
     return out
 
 
-#: A plant: simulates an axis file driven by references (position cycle grid) and returns
-#: the columns time, position_reference, motor_position, load_position, motor_speed and
-#: motor_torque at every position cycle. The default is this project's kernel with twice
-#: the default substeps; an independently written plant can be passed instead.
-Plant = Callable[[AxisConfig, References], Trace]
+#: A plant as a function: noise-free closed loop of an axis on references (the recording's
+#: hidden truth): the columns time, position_reference, motor_position, load_position,
+#: motor_speed and motor_torque at every position cycle. :func:`truth_simulator` is the
+#: compiled kernel's; the test suite has an independent one (tests/independent_plant).
+Simulator = Callable[[AxisConfig, References], Trace]
 
 
-def kernel_plant(axis: AxisConfig, refs: References) -> Trace:
-    """This project's kernel, twice the default mechanics substeps."""
+def truth_simulator(axis: AxisConfig, refs: References) -> Trace:
+    """The kernel with twice the default mechanics substeps (what :func:`generate` uses)."""
     return simulate(axis, refs, None, KernelOptions(substeps=2 * default_substeps(axis)))
 
 
-def generate(case: Case, plant: Plant = kernel_plant) -> GeneratedCase:
+def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
     """Simulate the recording of ``case`` with ``plant`` (deterministic in its seed)."""
     fam = FAMILIES[case.family]
     rng = np.random.default_rng(case.seed)
@@ -426,16 +426,18 @@ def generate(case: Case, plant: Plant = kernel_plant) -> GeneratedCase:
     )
 
 
-def concealment(gen: GeneratedCase, plant: Plant = kernel_plant) -> dict[str, float]:
+def concealment(gen: GeneratedCase, simulator: Simulator | None = None) -> dict[str, float]:
     """How hidden the effect is: per recorded signal, RMS of (truth − truth without the
     effect), noise-free and on the same inputs, divided by the measurement-noise std
     (``snr_<signal>``) and by the signal's spread (``share_<signal>``; for positions the spread
-    of the following error). An empty dict for a case with nothing left out."""
+    of the following error). An empty dict for a case with nothing left out. ``simulator``:
+    the plant that made the recording (default :func:`truth_simulator`)."""
     if gen.case.effect is None:
         return {}
     fam = FAMILIES[gen.case.family]
-    with_e = plant(gen.truth, gen.references)
-    without = plant(gen.truth_without, gen.references)
+    sim = simulator or truth_simulator
+    with_e = sim(gen.truth, gen.references)
+    without = sim(gen.truth_without, gen.references)
     out: dict[str, float] = {}
     ref = with_e["position_reference"]
     kr = gen.truth.transmission_ratio
