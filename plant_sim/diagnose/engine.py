@@ -423,6 +423,7 @@ def _round(
             parameters=axis_values(res.values),
             heldout=score,
             improvement_percent=100.0 * gain,
+            training_improvement_percent=100.0 * (1.0 - res.cost / sel.current.cost),
             z_statistic=z,
             p_value=p,
             p_without_best_block=p_rest,
