@@ -80,7 +80,8 @@ class Mechanics:
     backlash: float | None = None  # load units, total free play
 
     def __post_init__(self) -> None:
-        _check_range("mechanics.motor_inertia", self.motor_inertia, low=0.0, low_open=True)
+        # 0 is allowed: a lumped rigid model with all inertia in the load (needs a rigid axis)
+        _check_range("mechanics.motor_inertia", self.motor_inertia, low=0.0)
         _check_range("mechanics.screw_inertia", self.screw_inertia, low=0.0)
         _check_range("mechanics.load_mass", self.load_mass, low=0.0, low_open=True)
         _check_range(
@@ -93,6 +94,13 @@ class Mechanics:
                 "mechanics.damping_ratio",
                 self.damping_ratio,
                 "needs mechanics.antiresonance (damping of an elastic element the model lacks)",
+            )
+        if self.antiresonance is not None and self.motor_inertia + self.screw_inertia <= 0.0:
+            raise _fail(
+                "mechanics.motor_inertia",
+                self.motor_inertia,
+                "motor_inertia + screw_inertia must be > 0 on an elastic axis (antiresonance "
+                "given); 0 is allowed only for a lumped rigid model",
             )
         if self.backlash and self.antiresonance is None:
             raise _fail(
@@ -182,6 +190,13 @@ class Control:
     delay: float | None = None  # s, dead time set point -> torque; None: none
     position_cycle: float = 0.001  # s
     speed_cycle: float = 0.000125  # s
+    #: gain (0..1.5) on the interpolator's speed added to the speed set point; None: 0
+    velocity_feedforward: float | None = None
+    #: kg m^2 at the motor: torque set point += value * reference motor acceleration; None: 0
+    acceleration_feedforward: float | None = None
+    #: s, load measuring system's sample time minus the motor's (positive: load position
+    #: older), -0.05..0.05; None: both sampled together
+    sensor_time_offset: float | None = None
 
     def __post_init__(self) -> None:
         _check_range("control.kv", self.kv, low=0.0, low_open=True, high=1e4)
@@ -192,6 +207,11 @@ class Control:
         _check_range("control.delay", self.delay, low=0.0, high=0.1)
         _check_range("control.speed_cycle", self.speed_cycle, low=1e-6, high=0.1)
         _check_range("control.position_cycle", self.position_cycle, low=1e-6, high=1.0)
+        _check_range("control.velocity_feedforward", self.velocity_feedforward, low=0.0, high=1.5)
+        _check_range(
+            "control.acceleration_feedforward", self.acceleration_feedforward, low=0.0, high=1e6
+        )
+        _check_range("control.sensor_time_offset", self.sensor_time_offset, low=-0.05, high=0.05)
         ratio = self.position_cycle / self.speed_cycle
         if abs(ratio - round(ratio)) > 1e-6 * ratio or round(ratio) < 1:
             raise _fail(
@@ -251,7 +271,9 @@ class AxisConfig:
 
     @property
     def inertia_ratio(self) -> float:
-        """R = J_l' / J_motor_side (eq. 4)."""
+        """R = J_l' / J_motor_side (eq. 4); inf for a lumped model (motor side inertia 0)."""
+        if self.motor_side_inertia <= 0.0:
+            return math.inf
         return self.load_inertia_reflected / self.motor_side_inertia
 
     @property

@@ -89,11 +89,18 @@ position_command = _inline(_core.position_command)
     P_INV_J1,  # 1 / J1
     P_INV_M,  # 1 / P_M
     P_LAG_MEAN,  # mean of the lag's step response over a substep: T/dt·(1 − alpha) (1: ideal)
+    P_KVFF,  # velocity feed-forward gain on ω_s (0: none)
+    P_JFF,  # kg m^2, acceleration feed-forward inertia (0: none)
+    P_OFS_SIGN,  # +1: load position read late (offset > 0), -1: motor read late, 0: no offset
+    P_OFS_N,  # whole speed cycles of the sensor time offset
+    P_OFS_FRAC,  # fraction of a speed cycle on top of P_OFS_N
+    P_HIST_LEN,  # ring-buffer length in use (>= P_OFS_N + 2)
     N_PARAMS,
-) = range(39)
+) = range(45)
 
 # --- state vector --------------------------------------------------------------------------
 MAX_DELAY = 2048  # speed cycles of dead time the ring buffer holds
+MAX_HIST = 2048  # speed-cycle samples of sensor history (sensor_time_offset)
 (
     S_TH,  # rad, motor angle
     S_OM,  # rad/s, motor speed
@@ -109,9 +116,15 @@ MAX_DELAY = 2048  # speed cycles of dead time the ring buffer holds
     S_DLY_IDX,  # index into the dead-time ring buffer
     S_TAU_PREV,  # N m, torque applied over the previous substep (kick averaging)
     S_FD_PREV,  # N, external load force over the previous substep
-    S_DLY0,  # first slot of the ring buffer
-) = range(15)
-N_STATE = S_DLY0 + MAX_DELAY
+    S_TAU_FF,  # N m, torque feed-forward held over the position cycle
+    S_HIST_IDX,  # next slot of the sensor history ring buffers
+    S_FF_PENDING,  # N m, torque feed-forward waiting for the next position cycle
+    S_DLY0,  # first slot of the dead-time ring buffer
+) = range(18)
+S_HX0 = S_DLY0 + MAX_DELAY  # load position history, one sample per speed cycle
+S_HTH0 = S_HX0 + MAX_HIST  # motor angle history
+S_HOM0 = S_HTH0 + MAX_HIST  # measured motor speed history
+N_STATE = S_HOM0 + MAX_HIST
 
 # --- trace rows of the closed loop (one per position cycle) ------------------------------------
 (
@@ -248,13 +261,63 @@ def _torque_phase(p: np.ndarray, st: np.ndarray, cmd: float, f_dist: float) -> N
 
 
 @_inline
+def _push_history(p: np.ndarray, st: np.ndarray) -> None:
+    """Store this speed cycle's sensor values for the sensor time offset (no-op without)."""
+    if p[P_OFS_SIGN] == 0.0:
+        return
+    i = int(st[S_HIST_IDX])
+    st[S_HX0 + i] = st[S_X]
+    st[S_HTH0 + i] = st[S_TH]
+    st[S_HOM0 + i] = st[S_OM_MEAS]
+    st[S_HIST_IDX] = (i + 1) % int(p[P_HIST_LEN])
+
+
+@_inline
+def _history(p: np.ndarray, st: np.ndarray, base: int) -> float:
+    """Linear interpolation of a history buffer at |offset| before the latest sample."""
+    n = int(p[P_HIST_LEN])
+    latest = int(st[S_HIST_IDX]) - 1
+    m = int(p[P_OFS_N])
+    a = st[base + (latest - m) % n]
+    b = st[base + (latest - m - 1) % n]
+    return a + (b - a) * p[P_OFS_FRAC]
+
+
+@_inline
+def load_measured(p: np.ndarray, st: np.ndarray) -> float:
+    """Load measuring system's reading now: x(t − offset) for a positive sensor time offset
+    (linear interpolation between speed-cycle samples), else x(t)."""
+    if p[P_OFS_SIGN] > 0.0:
+        return _history(p, st, S_HX0)
+    return st[S_X]
+
+
+@_inline
+def motor_measured(p: np.ndarray, st: np.ndarray) -> float:
+    """Motor encoder reading for the position loop and the recording: θ(t − |offset|) for a
+    negative sensor time offset (the motor is the older one), else θ(t)."""
+    if p[P_OFS_SIGN] < 0.0:
+        return _history(p, st, S_HTH0)
+    return st[S_TH]
+
+
+@_inline
+def motor_speed_measured(p: np.ndarray, st: np.ndarray) -> float:
+    """The drive's speed actual value as recorded, shifted like :func:`motor_measured`."""
+    if p[P_OFS_SIGN] < 0.0:
+        return _history(p, st, S_HOM0)
+    return st[S_OM_MEAS]
+
+
+@_inline
 def speed_cycle(p: np.ndarray, st: np.ndarray, omega_set: float, f_dist: float) -> None:
     """One speed-controller cycle: measure, PI with anti-windup, dead time, current loop,
-    mechanics for one speed cycle."""
+    mechanics for one speed cycle. The torque feed-forward ``S_TAU_FF`` adds to the
+    proportional part (so the anti-windup clamp accounts for it)."""
     tsc = p[P_TSC]
     _measure_speed(p, st)
     err = omega_set - st[S_OM_MEAS]
-    kp_part = p[P_KSP] * err
+    kp_part = p[P_KSP] * err + st[S_TAU_FF]
     lim = p[P_TAU_LIM]
     if p[P_KI] != 0.0:
         integ = st[S_INT] + p[P_KI] * err * tsc
@@ -275,13 +338,22 @@ def speed_cycle(p: np.ndarray, st: np.ndarray, omega_set: float, f_dist: float) 
     else:
         cmd = u
     _torque_phase(p, st, cmd, f_dist)
+    _push_history(p, st)
 
 
 @_njit
-def advance(p: np.ndarray, st: np.ndarray, omega_set: float, disturbance_nm: float) -> None:
+def advance(
+    p: np.ndarray,
+    st: np.ndarray,
+    omega_set: float,
+    disturbance_nm: float,
+    torque_ff_nm: float = 0.0,
+) -> None:
     """One position cycle of the drive: ``nsc`` speed cycles at a constant speed set point
-    (rad/s at the motor) and a constant external disturbance (N·m reflected to the motor,
-    positive pushes towards +x)."""
+    (rad/s at the motor), a constant external disturbance (N·m reflected to the motor,
+    positive pushes towards +x) and a constant torque feed-forward (N·m, added to the
+    speed controller's output before the torque limit)."""
+    st[S_TAU_FF] = torque_ff_nm
     f_dist = p[P_KR] * disturbance_nm
     for _ in range(int(p[P_NSC])):
         speed_cycle(p, st, omega_set, f_dist)
@@ -294,9 +366,11 @@ def advance_torque(p: np.ndarray, st: np.ndarray, torque_nm: float, disturbance_
     measured and the PI integral is cleared, as a drive does when its power stage is off."""
     f_dist = p[P_KR] * disturbance_nm
     st[S_INT] = 0.0
+    st[S_TAU_FF] = 0.0
     for _ in range(int(p[P_NSC])):
         _measure_speed(p, st)
         _torque_phase(p, st, torque_nm, f_dist)
+        _push_history(p, st)
 
 
 @_njit
@@ -314,34 +388,50 @@ def run_closed_loop(
     x_ref: load units, interpolator position; v_ref: load units/s, interpolator speed
     (ω_s = k_r·v_ref); dist_nm: N·m at the motor, held over each position cycle.
     Row k holds the values sampled at the start of cycle k and the set point computed there.
+
+    Feed-forward (axis file ``control.velocity_feedforward`` / ``acceleration_feedforward``):
+    ω_c = eq. 7 + k_vff·ω_s, so the detector's input ω_s − ω_c keeps its meaning (≈ 0 on a
+    well-followed path); τ_ff = J_ff·k_r·(v_ref[k] − v_ref[k−1])/T_p over cycle k (v_ref[k]
+    is the speed over cycle k, so that is the step the reference makes at its start).
+    The position feedback and the recorded positions are the sensor readings
+    (:func:`load_measured`, :func:`motor_measured`: sensor time offset).
     """
     kr = p[P_KR]
     n_win = int(p[P_REG_N])
+    inv_tp = 1.0 / p[P_TP]
+    v_prev = v_ref[0]
     for k in range(x_ref.shape[0]):
-        x_fb = st[S_X] if p[P_FB_LOAD] != 0.0 else st[S_TH] / kr
-        w_c = position_command(x_ref[k], x_fb, p[P_KV], kr)
+        x_load = load_measured(p, st)
+        th_motor = motor_measured(p, st)
+        x_fb = x_load if p[P_FB_LOAD] != 0.0 else th_motor / kr
         w_s = kr * v_ref[k]
+        w_c = position_command(x_ref[k], x_fb, p[P_KV], kr) + p[P_KVFF] * w_s
+        tau_ff = p[P_JFF] * kr * (v_ref[k] - v_prev) * inv_tp
+        v_prev = v_ref[k]
         beta = detector_step(reg, n_win, p[P_TP], p[P_REG_TV], p[P_REG_TF], w_s - w_c)
         lam = switching_factor(beta, p[P_REG_BT]) if p[P_REG_ON] != 0.0 else 1.0
         w_r = regulated_speed(w_s, w_c, lam)
         if p[P_SP_DELAY] != 0.0:
             w_apply = st[S_SP_PENDING]
             st[S_SP_PENDING] = w_r
+            ff_apply = st[S_FF_PENDING]
+            st[S_FF_PENDING] = tau_ff
         else:
             w_apply = w_r
+            ff_apply = tau_ff
         out[k, O_T] = st[S_T]
         out[k, O_XREF] = x_ref[k]
         out[k, O_WSET] = w_r
-        out[k, O_TH] = st[S_TH]
-        out[k, O_WM] = st[S_OM_MEAS]
-        out[k, O_X] = st[S_X]
+        out[k, O_TH] = th_motor
+        out[k, O_WM] = motor_speed_measured(p, st)
+        out[k, O_X] = x_load
         out[k, O_TAU] = st[S_TAU]
         out[k, O_DIST] = dist_nm[k]
         out[k, O_BETA] = beta
         out[k, O_LAM] = lam
         out[k, O_WS] = w_s
         out[k, O_WC] = w_c
-        advance(p, st, w_apply, dist_nm[k])
+        advance(p, st, w_apply, dist_nm[k], ff_apply)
 
 
 @_njit

@@ -145,8 +145,26 @@ def build_params(
         p[K.P_REG_TV] = regulator.effective_tv_s
         p[K.P_REG_TF] = regulator.tf_s
         p[K.P_REG_BT] = regulator.beta_t_rad_s
+    p[K.P_KVFF] = c.velocity_feedforward or 0.0
+    p[K.P_JFF] = c.acceleration_feedforward or 0.0
+    offset = c.sensor_time_offset or 0.0
+    if offset != 0.0:
+        cycles = abs(offset) / c.speed_cycle
+        whole = math.floor(cycles)
+        if whole + 2 > K.MAX_HIST:
+            raise ScenarioError(
+                f"control.sensor_time_offset = {offset} s is {cycles:.0f} speed cycles; "
+                f"at most {K.MAX_HIST - 2}"
+            )
+        p[K.P_OFS_SIGN] = math.copysign(1.0, offset)
+        p[K.P_OFS_N] = whole
+        p[K.P_OFS_FRAC] = cycles - whole
+        p[K.P_HIST_LEN] = whole + 2
+    else:
+        p[K.P_HIST_LEN] = 1.0
     p[K.P_INV_KR] = 1.0 / p[K.P_KR]
-    p[K.P_INV_J1] = 1.0 / p[K.P_J1]
+    # a lumped rigid model may have no motor-side inertia (J1 = 0 is then unused)
+    p[K.P_INV_J1] = 1.0 / p[K.P_J1] if p[K.P_J1] > 0.0 else 0.0
     p[K.P_INV_M] = 1.0 / p[K.P_M]
     return p
 
@@ -157,6 +175,9 @@ def initial_state(axis: AxisConfig, position: float = 0.0) -> np.ndarray:
     st[K.S_X] = position
     st[K.S_TH] = axis.transmission_ratio * position
     st[K.S_TH_PREV] = st[K.S_TH]
+    # sensor history: at rest since forever
+    st[K.S_HX0 : K.S_HX0 + K.MAX_HIST] = st[K.S_X]
+    st[K.S_HTH0 : K.S_HTH0 + K.MAX_HIST] = st[K.S_TH]
     return st
 
 
@@ -178,10 +199,22 @@ class AxisPlant:
         self._p = build_params(axis, None, options)
         self._st = initial_state(axis, position)
 
-    def advance(self, speed_setpoint_rad_s: float, disturbance_nm: float = 0.0) -> None:
-        """Run one position cycle at a constant speed set point (rad/s, motor) and external
-        disturbance (N·m reflected to the motor, positive pushes towards +x)."""
-        K.advance(self._p, self._st, float(speed_setpoint_rad_s), float(disturbance_nm))
+    def advance(
+        self,
+        speed_setpoint_rad_s: float,
+        disturbance_nm: float = 0.0,
+        torque_feedforward_nm: float = 0.0,
+    ) -> None:
+        """Run one position cycle at a constant speed set point (rad/s, motor), external
+        disturbance (N·m reflected to the motor, positive pushes towards +x) and torque
+        feed-forward (N·m added to the speed controller's output, before the limit)."""
+        K.advance(
+            self._p,
+            self._st,
+            float(speed_setpoint_rad_s),
+            float(disturbance_nm),
+            float(torque_feedforward_nm),
+        )
 
     def advance_torque(self, torque_nm: float, disturbance_nm: float = 0.0) -> None:
         """Run one position cycle with the speed loop bypassed at a fixed torque set point
@@ -205,17 +238,20 @@ class AxisPlant:
 
     @property
     def motor_position_rad(self) -> float:
-        return float(self._st[K.S_TH])
+        """Motor encoder reading (older by |control.sensor_time_offset| when negative)."""
+        return float(K.motor_measured(self._p, self._st))
 
     @property
     def motor_speed_rad_s(self) -> float:
-        """The drive's speed actual value (encoder difference over the last speed cycle)."""
-        return float(self._st[K.S_OM_MEAS])
+        """The drive's speed actual value (encoder difference over the last speed cycle),
+        shifted like :attr:`motor_position_rad`."""
+        return float(K.motor_speed_measured(self._p, self._st))
 
     @property
     def load_position(self) -> float:
-        """Direct measuring system, load units."""
-        return float(self._st[K.S_X])
+        """Direct measuring system, load units (older by control.sensor_time_offset when
+        positive: read at t − offset, interpolated between speed cycles)."""
+        return float(K.load_measured(self._p, self._st))
 
     @property
     def load_speed(self) -> float:

@@ -77,6 +77,9 @@ def simulate_reference(
     c = axis.control
     if c.delay:
         raise ScenarioError("the reference implementation has no dead time (control.delay)")
+    for key in ("velocity_feedforward", "acceleration_feedforward", "sensor_time_offset"):
+        if getattr(c, key):
+            raise ScenarioError(f"the reference implementation has no control.{key}")
     kr = axis.transmission_ratio
     rhs = _rhs_factory(axis)
     reg = BacklashRegulator.from_config(

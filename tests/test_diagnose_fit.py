@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from plant_sim.axis import AxisConfig
-from plant_sim.diagnose.effects import data_scales, inverse_dynamics, nominal_spec
 from plant_sim.diagnose.errors import DiagnosisOptionError
+from plant_sim.diagnose.evidence import data_scales, inverse_dynamics
 from plant_sim.diagnose.fit import (
     PERIODIC_COS,
     PERIODIC_SIN,
@@ -20,6 +20,7 @@ from plant_sim.diagnose.fit import (
     axis_with,
     fit,
 )
+from plant_sim.diagnose.parameters import nominal_spec
 from plant_sim.diagnose.replay import prepare_replay
 from plant_sim.diagnose.synthetic import slide_axis
 from plant_sim.model import KernelOptions

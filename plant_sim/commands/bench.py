@@ -58,7 +58,9 @@ def _lines(results: dict[str, object], prefix: str = "") -> list[str]:
     out = []
     for key, value in results.items():
         name = f"{prefix}{key}"
-        if isinstance(value, dict):
+        if isinstance(value, dict) and "table" in value:
+            out.append(str(value["table"]))  # a benchmark's own summary (all of it in --json)
+        elif isinstance(value, dict):
             out += _lines(value, name + ".")
         elif isinstance(value, float):
             out.append(f"{name:40s} {value:.4g}")

@@ -1,4 +1,4 @@
-"""``python -m plant_sim matrix [--seed 2] [--duration 25] [--cases NAME ...]``.
+"""``python -m plant_sim matrix [--plant kernel|independent] [--seed 2] [--out DIR] ...``.
 
 Runs the diagnosis on the concealed test set (:func:`plant_sim.diagnose.synthetic.test_set`)
 and prints the markdown tables of :mod:`plant_sim.diagnose.matrix` (confusion matrix,
@@ -10,11 +10,19 @@ from __future__ import annotations
 import argparse
 import json
 from dataclasses import asdict
+from pathlib import Path
 
 from virtual_bus import cli
 from virtual_bus.progress import Progress
 
-from ..diagnose.matrix import CaseResult, cases_markdown, confusion_markdown, run_matrix
+from ..diagnose.matrix import (
+    PLANTS,
+    CaseResult,
+    cases_markdown,
+    confusion_markdown,
+    load_plant,
+    run_matrix,
+)
 from ..diagnose.synthetic import test_set
 
 NAME = "matrix"
@@ -22,6 +30,16 @@ HELP = "confusion matrix of the diagnosis on the concealed test set (several min
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--plant",
+        choices=sorted(PLANTS),
+        default="kernel",
+        help="plant that makes the recordings: kernel (this package's, default) or "
+        "independent (the test suite's independently written plant)",
+    )
+    parser.add_argument(
+        "--out", type=Path, help="also write DIR/matrix_<plant>_seed<S>.md and .jsonl"
+    )
     parser.add_argument("--seed", type=int, default=2, help="test-set seed (default 2)")
     parser.add_argument(
         "--duration",
@@ -38,6 +56,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    try:
+        plant = load_plant(args.plant)
+    except ValueError as exc:
+        raise cli.UsageError(f"--plant: {exc}") from None
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        if args.json is None:
+            args.json = args.out / f"matrix_{args.plant}_seed{args.seed}.jsonl"
     cases = test_set(seed=args.seed, duration_s=args.duration)
     if args.cases:
         known = {c.name for c in cases}
@@ -58,11 +84,18 @@ def run(args: argparse.Namespace) -> int:
                 sink.flush()
 
         try:
-            results = run_matrix(cases, on_result=on_result)
+            results = run_matrix(cases, on_result=on_result, plant=plant)
         finally:
             if sink is not None:
                 sink.close()
-    print(confusion_markdown(results))
-    print()
-    print(cases_markdown(results))
+    text = (
+        f"Plant: {plant.name}, seed {args.seed}, {args.duration:g} s per recording.\n\n"
+        + confusion_markdown(results)
+        + "\n\n"
+        + cases_markdown(results)
+        + "\n"
+    )
+    print(text, end="")
+    if args.out is not None:
+        (args.out / f"matrix_{args.plant}_seed{args.seed}.md").write_text(text, encoding="utf-8")
     return 0

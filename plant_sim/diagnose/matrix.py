@@ -1,23 +1,68 @@
 """Confusion matrix and fit improvements of the diagnosis on the concealed test set.
 
-``python -m plant_sim matrix [--seed 2] [--duration 25] [--cases NAME ...]`` runs
-:func:`run_matrix` on :func:`plant_sim.diagnose.synthetic.test_set` and prints the markdown
-tables (confusion matrix, per-case results with concealment and fit before/after, timings).
+``python -m plant_sim matrix [--plant kernel|independent] [--seed 2] [--duration 25]
+[--cases NAME ...] [--out DIR]`` runs :func:`run_matrix` on
+:func:`plant_sim.diagnose.synthetic.test_set` and prints the markdown tables (confusion
+matrix, per-case results with concealment and fit before/after, timings); ``--out`` also
+writes them to ``DIR/matrix_<plant>_seed<S>.md`` (and the results as JSON lines).
+
+The plant that makes the recordings is a :class:`MatrixPlant`: ``kernel`` is this package's
+compiled kernel (:func:`synthetic.generate`), ``independent`` the test suite's independent
+plant (``tests/independent_plant``: other integrator, friction and contact laws, sensors,
+current loop and noise), found relative to this checkout.
 The full set takes several minutes (one diagnosis per case); the test suite runs a few cases.
 """
 
 from __future__ import annotations
 
+import importlib
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 from .effects import Effect, effects_in
 from .engine import DiagnosisOptions, diagnose
-from .synthetic import Case, concealment, generate
+from .synthetic import (
+    Case,
+    GeneratedCase,
+    Simulator,
+    concealment,
+    generate,
+    truth_simulator,
+)
 
 DEFAULT_OPTIONS = DiagnosisOptions()
+
+
+@dataclass(frozen=True)
+class MatrixPlant:
+    """What makes the recordings: ``generate`` turns a case into a recording, nominal file and
+    hidden truth; ``simulator`` is the same plant noise-free (for the concealment measure)."""
+
+    name: str
+    generate: Callable[[Case], GeneratedCase]
+    simulator: Simulator
+
+
+KERNEL_PLANT = MatrixPlant("kernel", generate, truth_simulator)
+PLANTS = ("kernel", "independent")
+
+
+def load_plant(name: str) -> MatrixPlant:
+    """``kernel`` or ``independent`` (imported from this checkout's tests/ directory)."""
+    if name == "kernel":
+        return KERNEL_PLANT
+    if name != "independent":
+        raise ValueError(f"plant {name!r}: allowed {PLANTS}")
+    tests_dir = Path(__file__).resolve().parents[2] / "tests"
+    if not (tests_dir / "independent_plant").is_dir():
+        raise ValueError(f"plant 'independent': {tests_dir / 'independent_plant'} not found")
+    if str(tests_dir) not in sys.path:
+        sys.path.insert(0, str(tests_dir))
+    recording = importlib.import_module("independent_plant.recording")
+    return MatrixPlant("independent", recording.generate, recording.simulator)
 
 
 @dataclass(frozen=True)
@@ -40,8 +85,10 @@ class CaseResult:
     n_samples: int
 
 
-def run_case(case: Case, options: DiagnosisOptions = DEFAULT_OPTIONS) -> CaseResult:
-    gen = generate(case)
+def run_case(
+    case: Case, options: DiagnosisOptions = DEFAULT_OPTIONS, plant: MatrixPlant = KERNEL_PLANT
+) -> CaseResult:
+    gen = plant.generate(case)
     t0 = time.perf_counter()
     d = diagnose(gen.recording, gen.nominal, options=options)
     secs = time.perf_counter() - t0
@@ -63,7 +110,7 @@ def run_case(case: Case, options: DiagnosisOptions = DEFAULT_OPTIONS) -> CaseRes
         exact=sorted(named) == expected,
         expected=expected,
         ambiguous_with=[a.alternative.value for a in d.ambiguous],
-        concealment=concealment(gen),
+        concealment=concealment(gen, plant.simulator),
         fit_before={k: v.fit_percent for k, v in d.fit_before.items()},
         fit_refit={k: v.fit_percent for k, v in d.fit_refit.items()},
         fit_after={k: v.fit_percent for k, v in d.fit_after.items()},
@@ -77,10 +124,11 @@ def run_matrix(
     cases: Sequence[Case],
     options: DiagnosisOptions = DEFAULT_OPTIONS,
     on_result: Callable[[CaseResult], None] | None = None,
+    plant: MatrixPlant = KERNEL_PLANT,
 ) -> list[CaseResult]:
     results = []
     for case in cases:
-        r = run_case(case, options)
+        r = run_case(case, options, plant)
         results.append(r)
         if on_result is not None:
             on_result(r)
@@ -100,6 +148,7 @@ SHORT = {
     "periodic_disturbance": "per",
     "torque_saturation": "sat",
     "time_delay": "dly",
+    "sensor_time_offset": "sto",
 }
 
 

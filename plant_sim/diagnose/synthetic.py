@@ -26,7 +26,7 @@ the motor encoder, a linear scale recorded alongside).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,7 +37,7 @@ from ..axis import AxisConfig, AxisKind, Control, Friction, Mechanics, PositionF
 from ..model import KernelOptions, default_substeps
 from ..simulate import References, simulate
 from ..trace import Trace
-from .effects import Effect
+from .effects import MODELS, Effect
 from .errors import DiagnosisOptionError
 
 #: Recording sample time in position cycles.
@@ -342,11 +342,11 @@ class GeneratedCase:
     process_nm: np.ndarray
 
 
-def _peak_demand(axis: AxisConfig, refs: References, options: KernelOptions) -> float:
+def _peak_demand(axis: AxisConfig, refs: References, plant: Simulator) -> float:
     """Peak |motor torque| without a limit (the fast moves all accelerate at the axis's
     largest acceleration, so a limit just below it clips each of them a little)."""
     free = axis.with_values({"control.torque_limit": None})
-    return float(np.max(np.abs(simulate(free, refs, None, options)["motor_torque"])))
+    return float(np.max(np.abs(plant(free, refs)["motor_torque"])))
 
 
 def _perturb(axis: AxisConfig, rng: np.random.Generator) -> AxisConfig:
@@ -360,21 +360,28 @@ def _perturb(axis: AxisConfig, rng: np.random.Generator) -> AxisConfig:
 
 
 def _strip(axis: AxisConfig, effect: Effect, truth_base: AxisConfig) -> AxisConfig:
-    """The axis without ``effect`` (back to the family's base for mechanics effects)."""
-    from .effects import EFFECT_KEYS
-
-    changes: dict[str, float | None] = {key: None for key in EFFECT_KEYS[effect]}
+    """The axis without ``effect``; backlash on a rigid family also takes its contact
+    stiffness (the truth's compliance) out."""
+    out = MODELS[effect].strip(axis)
     if effect is Effect.BACKLASH and truth_base.is_rigid:
-        changes.update({"mechanics.antiresonance": None, "mechanics.damping_ratio": None})
-    if effect is Effect.COMPLIANCE:
-        changes["mechanics.backlash"] = None
-    if effect is Effect.TORQUE_SATURATION:
-        changes["control.torque_limit"] = None
-    return axis.with_values(changes)
+        out = MODELS[Effect.COMPLIANCE].strip(out)
+    return out
 
 
-def generate(case: Case) -> GeneratedCase:
-    """Simulate the recording of ``case`` (deterministic in its seed)."""
+#: A plant as a function: noise-free closed loop of an axis on references (the recording's
+#: hidden truth): the columns time, position_reference, motor_position, load_position,
+#: motor_speed and motor_torque at every position cycle. :func:`truth_simulator` is the
+#: compiled kernel's; the test suite has an independent one (tests/independent_plant).
+Simulator = Callable[[AxisConfig, References], Trace]
+
+
+def truth_simulator(axis: AxisConfig, refs: References) -> Trace:
+    """The kernel with twice the default mechanics substeps (what :func:`generate` uses)."""
+    return simulate(axis, refs, None, KernelOptions(substeps=2 * default_substeps(axis)))
+
+
+def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
+    """Simulate the recording of ``case`` with ``plant`` (deterministic in its seed)."""
     fam = FAMILIES[case.family]
     rng = np.random.default_rng(case.seed)
     base = fam.truth
@@ -389,11 +396,11 @@ def generate(case: Case) -> GeneratedCase:
         variant = fam.effects[case.effect][case.seed % len(fam.effects[case.effect])]
         changes = dict(variant)
         if case.effect is Effect.TORQUE_SATURATION:
-            peak = _peak_demand(base, refs, KernelOptions(substeps=2 * default_substeps(base)))
+            peak = _peak_demand(base, refs, plant)
             changes["control.torque_limit"] = float(variant["control.torque_limit"] or 1.0) * peak
         truth = base.with_values(changes)
     truth_without = truth if case.effect is None else _strip(truth, case.effect, base)
-    sim = simulate(truth, refs, None, KernelOptions(substeps=2 * default_substeps(truth)))
+    sim = plant(truth, refs)
     nominal = _perturb(truth_without, rng)
     keep = slice(0, None, DECIMATION)
     noise = fam.noise
@@ -419,18 +426,18 @@ def generate(case: Case) -> GeneratedCase:
     )
 
 
-def concealment(gen: GeneratedCase) -> dict[str, float]:
+def concealment(gen: GeneratedCase, simulator: Simulator | None = None) -> dict[str, float]:
     """How hidden the effect is: per recorded signal, RMS of (truth − truth without the
     effect), noise-free and on the same inputs, divided by the measurement-noise std
     (``snr_<signal>``) and by the signal's spread (``share_<signal>``; for positions the spread
-    of the following error). An empty dict for a case with nothing left out."""
+    of the following error). An empty dict for a case with nothing left out. ``simulator``:
+    the plant that made the recording (default :func:`truth_simulator`)."""
     if gen.case.effect is None:
         return {}
     fam = FAMILIES[gen.case.family]
-    options = KernelOptions(substeps=2 * default_substeps(gen.truth))
-    with_e = simulate(gen.truth, gen.references, None, options)
-    opts0 = KernelOptions(substeps=2 * default_substeps(gen.truth_without))
-    without = simulate(gen.truth_without, gen.references, None, opts0)
+    sim = simulator or truth_simulator
+    with_e = sim(gen.truth, gen.references)
+    without = sim(gen.truth_without, gen.references)
     out: dict[str, float] = {}
     ref = with_e["position_reference"]
     kr = gen.truth.transmission_ratio
@@ -459,7 +466,7 @@ def test_set(
     cases: list[Case] = []
     k = 0
     for fam in families:
-        for effect in Effect:
+        for effect in FAMILIES[fam].effects:
             cases.append(Case(f"{fam}-{effect.value}", fam, effect, seed * 1000 + k, duration_s))
             k += 1
         for i in range(none_per_family):

@@ -9,6 +9,14 @@ stage does (paper Fig. 1 below the position controller, section V):
   option code 0 disables the drive at once), completed at standstill;
 - every other state: power stage off, the axis coasts (``AxisPlant.advance_torque(0)``).
 
+Acceleration feed-forward (axis file ``control.acceleration_feedforward``, J_ff in kg·m²):
+in CSV mode the drive only sees the speed set point, so it derives the reference
+acceleration from it, τ_ff = J_ff·(ω_set[k] − ω_set[k−1])/T_p, and adds it to the speed
+controller's output (as drives do with a speed-set-point interface). Velocity feed-forward
+(``control.velocity_feedforward``) belongs to the position controller, i.e. the master that
+computes 60FFh; the drive does nothing with it. The sensor time offset is physics of the
+measuring systems and is applied by :class:`AxisPlant` (its positions are the readings).
+
 Its supervision runs once per SYNC: the set point watchdog (2102h, reaction 6007h), the
 motor encoder vs load scale monitor (2101h, paper section II.B) and the end of the ramps.
 """
@@ -89,6 +97,7 @@ class ServoAxis:
         self.watchdog = SetpointWatchdog()
         self._ramp_rad_s = 0.0
         self._ramp_done = False
+        self._last_setpoint_rad_s = 0.0  # for the acceleration feed-forward
         self._fault_codes: set[int] = set()
         self._set_axis_defaults()
         self._attach_objects()
@@ -237,7 +246,11 @@ class ServoAxis:
         state = self.sm.state
         if state is S.OPERATION_ENABLED:
             speed = O.increments_to_rad(t.value(O.TARGET_VELOCITY))
-            p.advance(speed_setpoint_rad_s=speed, disturbance_nm=disturbance_nm)
+            p.advance(
+                speed_setpoint_rad_s=speed,
+                disturbance_nm=disturbance_nm,
+                torque_feedforward_nm=self._torque_feedforward_nm(speed),
+            )
         elif state in (S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE):
             if state is S.QUICK_STOP_ACTIVE:
                 slow = t.value(O.QUICK_STOP_OPTION) in (1, 5)
@@ -249,10 +262,22 @@ class ServoAxis:
                 self._ramp_rad_s = 0.0
             else:
                 self._ramp_rad_s -= math.copysign(step, self._ramp_rad_s)
-            p.advance(speed_setpoint_rad_s=self._ramp_rad_s, disturbance_nm=disturbance_nm)
+            p.advance(
+                speed_setpoint_rad_s=self._ramp_rad_s,
+                disturbance_nm=disturbance_nm,
+                torque_feedforward_nm=self._torque_feedforward_nm(self._ramp_rad_s),
+            )
             self._ramp_done = self._ramp_rad_s == 0.0
         else:
             p.advance_torque(0.0, disturbance_nm)
+            self._last_setpoint_rad_s = p.motor_speed_rad_s
+
+    def _torque_feedforward_nm(self, setpoint_rad_s: float) -> float:
+        """J_ff times the speed set point's change over the last position cycle (N·m)."""
+        inertia = self.axis.control.acceleration_feedforward or 0.0
+        change = setpoint_rad_s - self._last_setpoint_rad_s
+        self._last_setpoint_rad_s = setpoint_rad_s
+        return inertia * change / self.axis.control.position_cycle
 
     # --- protection ----------------------------------------------------------------------------
     def _encoder_ok(self) -> bool:

@@ -1,0 +1,119 @@
+"""Recordings of the concealed test set made on the independent plant.
+
+Same cases as :func:`plant_sim.diagnose.synthetic.test_set` (families, effects, magnitudes,
+nominal files with the concealed effect's keys absent and the uncertain parameters 5–10 %
+off), but the hidden truth runs on this package's plant and the noise is its own:
+
+* the unrecorded process disturbance is an Ornstein–Uhlenbeck torque (corner 1.5 Hz) plus a
+  slow drift, not the synthetic set's 2nd-order Butterworth noise;
+* measurement noise is coloured: the torque noise is white noise through a first-order
+  low-pass at 300 Hz (current sensor and PWM ripple after the drive's filter), the speed
+  noise the same at 400 Hz, each scaled to the family's standard deviation; positions carry
+  the sensors' quantisation plus a small white noise (interpolation error of the scale);
+* the references come from a separate random stream (seed + 7919).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal as sps
+
+from plant_sim.axis import AxisConfig
+from plant_sim.diagnose.effects import Effect
+from plant_sim.diagnose.synthetic import (
+    DECIMATION,
+    FAMILIES,
+    Case,
+    GeneratedCase,
+    _perturb,
+    _strip,
+    reference_profile,
+)
+from plant_sim.simulate import References
+from plant_sim.trace import Trace
+
+from .plant import PlantOptions, simulate
+
+SEED_SHIFT = 7919
+
+
+def simulator(axis: AxisConfig, refs: References) -> Trace:
+    """Noise-free closed loop of the independent plant (the matrix's plant function)."""
+    return simulate(axis, refs.position, refs.speed, refs.disturbance_nm, PlantOptions())
+
+
+def _coloured(rng: np.random.Generator, n: int, corner_hz: float, fs_hz: float) -> np.ndarray:
+    b, a = sps.butter(1, corner_hz, fs=fs_hz)
+    raw = sps.lfilter(b, a, rng.standard_normal(n + 500))[500:]
+    return raw / max(float(np.std(raw)), 1e-300)
+
+
+def process_torque(std_nm: float, n: int, cycle_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Ornstein–Uhlenbeck torque (corner 1.5 Hz) plus a linear drift, std ``std_nm``."""
+    if std_nm <= 0.0:
+        return np.zeros(n)
+    theta = 2.0 * np.pi * 1.5
+    decay = np.exp(-theta * cycle_s)
+    kick = np.sqrt(1.0 - decay**2)
+    ou = sps.lfilter([kick], [1.0, -decay], rng.standard_normal(n))
+    drift = np.linspace(-1.0, 1.0, n) * rng.uniform(-0.5, 0.5)
+    total = ou + drift
+    return std_nm * total / max(float(np.std(total)), 1e-300)
+
+
+def _peak_demand(axis: AxisConfig, refs: References) -> float:
+    free = axis.with_values({"control.torque_limit": None})
+    return float(np.max(np.abs(simulator(free, refs)["motor_torque"])))
+
+
+def generate(case: Case) -> GeneratedCase:
+    """Simulate ``case`` on the independent plant (deterministic in its seed)."""
+    fam = FAMILIES[case.family]
+    rng = np.random.default_rng(case.seed + SEED_SHIFT)
+    base = fam.truth
+    cycle = base.control.position_cycle
+    position = reference_profile(fam.excitation, case.duration_s, cycle, rng)
+    refs0 = References.from_position(position, cycle)
+    n = len(position)
+    process = process_torque(fam.noise.process_nm, n, cycle, rng)
+    refs = References(refs0.position, refs0.speed, process)
+    truth = base
+    if case.effect is not None:
+        variant = fam.effects[case.effect][case.seed % len(fam.effects[case.effect])]
+        changes = dict(variant)
+        if case.effect is Effect.TORQUE_SATURATION:
+            fraction = float(variant["control.torque_limit"] or 1.0)
+            changes["control.torque_limit"] = fraction * _peak_demand(base, refs)
+        truth = base.with_values(changes)
+    truth_without = truth if case.effect is None else _strip(truth, case.effect, base)
+    sim = simulator(truth, refs)
+    nominal = _perturb(truth_without, rng)
+    keep = slice(0, None, DECIMATION)
+    noise = fam.noise
+    fs = 1.0 / cycle
+    cols = {
+        "time": sim["time"][keep],
+        "position_reference": sim["position_reference"][keep],
+        "motor_position": sim["motor_position"][keep],
+        "load_position": sim["load_position"][keep],
+        "motor_speed": sim["motor_speed"][keep],
+        "motor_torque": sim["motor_torque"][keep],
+    }
+    m = len(cols["time"])
+    cols["motor_torque"] = (
+        cols["motor_torque"] + noise.motor_torque * _coloured(rng, n, 300.0, fs)[keep][:m]
+    )
+    cols["motor_speed"] = (
+        cols["motor_speed"] + noise.motor_speed * _coloured(rng, n, 400.0, fs)[keep][:m]
+    )
+    for name in ("motor_position", "load_position"):
+        cols[name] = cols[name] + 0.5 * getattr(noise, name) * rng.standard_normal(m)
+    return GeneratedCase(
+        case=case,
+        recording=Trace(cols),
+        nominal=nominal,
+        truth=truth,
+        truth_without=truth_without,
+        references=refs,
+        process_nm=process,
+    )
