@@ -27,6 +27,7 @@ from enum import Enum, IntEnum
 from canopen.profiles.p402 import State402
 
 from regulator import BacklashRegulator, PositionController
+from virtual_bus.contract import NmtState
 
 from .errors import ParameterError, SdoAbort
 from .interpolator import Interpolator, Move, Table
@@ -38,9 +39,9 @@ log = logging.getLogger("bridge")
 
 #: Time the drive gets to reach Operation Enabled after an enable command, s.
 ENABLE_TIMEOUT_S = 1.0
-#: NMT state byte of an operational node in its heartbeat (CiA 301).
-NMT_OPERATIONAL = 0x05
-NMT_BOOTUP = 0x00
+#: NMT state bytes in a heartbeat (CiA 301).
+NMT_OPERATIONAL = NmtState.OPERATIONAL
+NMT_BOOTUP = NmtState.INITIALISING
 
 
 class BridgeState(Enum):

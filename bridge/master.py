@@ -30,15 +30,19 @@ import canopen
 from canopen.profiles.p402 import OperationMode
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
+from virtual_bus.contract import (
+    COB_ID_INVALID,
+    NmtCommand,
+    rpdo_cob_id,
+    tpdo_cob_id,
+)
+
 from .cycle import Drive402State, drive_state, enable_controlword
 from .errors import BridgeConfigError, DriveSetupError, DriveTimeoutError, SdoAbort
 from .layout import LAYOUT, PdoSpec
 
 log = logging.getLogger("bridge")
 
-NMT_START = 0x01
-NMT_PRE_OPERATIONAL = 0x80
-COB_ID_INVALID = 0x8000_0000
 _U8 = struct.Struct("<B")
 _I8 = struct.Struct("<b")
 _U16 = struct.Struct("<H")
@@ -156,7 +160,7 @@ class DriveMaster:
     def disable_pdo(self, transmit: bool, number: int) -> None:
         """Mark a PDO outside the layout invalid; a drive without it is fine."""
         index = (0x1800 if transmit else 0x1400) + number - 1
-        cob = (0x180 if transmit else 0x200) + 0x100 * (number - 1) + self.drive.id
+        cob = (tpdo_cob_id if transmit else rpdo_cob_id)(number, self.drive.id)
         try:
             self.write(index, 1, _U32.pack(COB_ID_INVALID | cob))
         except DriveSetupError as exc:
@@ -219,7 +223,7 @@ class DriveMaster:
     def run(self) -> DriveInfo:
         """The whole start-up sequence (module docstring); returns what it learned."""
         nmt = self.drive.nmt
-        nmt.send_command(NMT_PRE_OPERATIONAL)
+        nmt.send_command(NmtCommand.ENTER_PRE_OPERATIONAL)
         for spec in LAYOUT:
             self.configure_pdo(spec)
         if self.setup.disable_other_pdos:
@@ -238,7 +242,7 @@ class DriveMaster:
                 index=0x6076,
                 subindex=0,
             )
-        nmt.send_command(NMT_START)
+        nmt.send_command(NmtCommand.START)
         sw = self.enable_operation()
         log.info(
             "drive %d configured: CSV, rated torque %d mN·m, statusword 0x%04X",

@@ -39,18 +39,12 @@ import canopen
 
 from plant_sim.axis import AxisConfig
 from plant_sim.model import AxisPlant
+from virtual_bus.contract import SdoAbort
 
 from . import od as O
 from .cia402 import State402
 from .config import DriveConfig, TimeMode
-from .errors import (
-    ABORT_READ_ONLY,
-    ABORT_VALUE_RANGE,
-    DriveConfigError,
-    DriveInputError,
-    DriveSdoAbort,
-    DriveStateError,
-)
+from .errors import DriveConfigError, DriveInputError, DriveSdoAbort, DriveStateError
 from .node import DriveNmt, DriveNode, NmtCommand, NmtState, SimulatedHeartbeat, WallClockHeartbeat
 from .pdo import PdoEngine
 from .protection import EMCY_PDO_LENGTH, EMCY_SYNC_LENGTH, ErrorList, emcy_data_int32
@@ -348,7 +342,7 @@ class SimulatedDrive:
         with self._lock:
             key = (index, subindex)
             if key not in self._table or not self._table.variable(key).writable:
-                raise DriveSdoAbort(ABORT_READ_ONLY, "object is not writable", key=key)
+                raise DriveSdoAbort(SdoAbort.READ_ONLY, "object is not writable", key=key)
             self._table.write(key, value)
 
     # ------------------------------------------------------------------------------------------
@@ -381,14 +375,14 @@ class SimulatedDrive:
     def _check_sync_cob_id(self, value: int) -> None:
         if value & 0x7FFFF800:
             raise DriveSdoAbort(
-                ABORT_VALUE_RANGE,
+                SdoAbort.VALUE_RANGE,
                 f"COB-ID SYNC 0x{value:08X}: the drive only consumes SYNC (bit 30 = 0) on an "
                 "11-bit CAN id (bits 11..29 = 0)",
                 key=O.COB_ID_SYNC,
             )
         if value & 0x7FF == 0:
             raise DriveSdoAbort(
-                ABORT_VALUE_RANGE, "COB-ID SYNC: CAN id 0 is the NMT service", key=O.COB_ID_SYNC
+                SdoAbort.VALUE_RANGE, "COB-ID SYNC: CAN id 0 is the NMT service", key=O.COB_ID_SYNC
             )
 
     def _send(self, can_id: int, data: bytes) -> None:

@@ -16,7 +16,6 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
-from enum import IntEnum
 from typing import Protocol
 
 import can
@@ -25,29 +24,9 @@ from canopen import LocalNode
 from canopen.objectdictionary import ObjectDictionary
 from canopen.sdo import SdoServer
 
+from virtual_bus.contract import HEARTBEAT_BASE, NmtCommand, NmtState
+
 logger = logging.getLogger(__name__)
-
-NMT_COB_ID = 0x000
-HEARTBEAT_BASE = 0x700
-
-
-class NmtState(IntEnum):
-    """NMT states with their heartbeat codes (CiA 301 table 48)."""
-
-    INITIALISING = 0  # boot-up
-    STOPPED = 4
-    OPERATIONAL = 5
-    PRE_OPERATIONAL = 127
-
-
-class NmtCommand(IntEnum):
-    """NMT command specifiers (CiA 301 7.2.8.3.1)."""
-
-    START = 0x01
-    STOP = 0x02
-    ENTER_PRE_OPERATIONAL = 0x80
-    RESET_NODE = 0x81
-    RESET_COMMUNICATION = 0x82
 
 
 _TARGET = {
