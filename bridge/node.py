@@ -30,6 +30,7 @@ import canopen
 import numpy as np
 
 from plant_sim.axis import AxisKind
+from virtual_bus.sdo_server import CheckedSdoServer
 
 from .cycle import BridgeState, CycleController
 from .errors import BridgeConfigError, PdoFrameError
@@ -146,6 +147,7 @@ class Bridge:
         self.port = BusPort(bus, bus_log)
         self.network = canopen.Network(self.port)  # type: ignore[arg-type]
         self.node = canopen.LocalNode(config.node_id, load_od(config.eds_path, config.node_id))
+        self.node.sdo = CheckedSdoServer(self.node)  # before the node joins the network
         self.network.add_node(self.node)
         self.drive = canopen.RemoteNode(config.drive_id, canopen.ObjectDictionary())
         self.network.add_node(self.drive)

@@ -8,7 +8,8 @@ What canopen's LocalNode / NmtSlave lack and this module adds:
 - the reset hooks (application / communication parameters back to their defaults);
 - a heartbeat clocked by the simulated time (lockstep: one position cycle per SYNC), since
   NmtSlave's heartbeat always runs on the wall clock in a python-can thread;
-- no SDO service in Stopped (CiA 301 table 46).
+- no SDO service in Stopped (CiA 301 table 46), and an SDO server that answers as CiA 301
+  says (:class:`virtual_bus.sdo_server.CheckedSdoServer`).
 """
 
 from __future__ import annotations
@@ -22,9 +23,9 @@ import can
 import canopen.network
 from canopen import LocalNode
 from canopen.objectdictionary import ObjectDictionary
-from canopen.sdo import SdoServer
 
 from virtual_bus.contract import HEARTBEAT_BASE, NmtCommand, NmtState
+from virtual_bus.sdo_server import CheckedSdoServer
 
 logger = logging.getLogger(__name__)
 
@@ -177,8 +178,9 @@ class DriveNmt:
         self.execute(command)
 
 
-class _GatedSdoServer(SdoServer):
-    """canopen's SDO server, silent while ``blocked()`` (NMT Stopped), serialised by ``lock``."""
+class _GatedSdoServer(CheckedSdoServer):
+    """The CiA 301 SDO server, silent while ``blocked()`` (NMT Stopped), serialised by
+    ``lock``."""
 
     def __init__(
         self,
@@ -187,7 +189,7 @@ class _GatedSdoServer(SdoServer):
         lock: threading.RLock,
         blocked: Callable[[], bool],
     ) -> None:
-        super().__init__(0x600 + node.id, 0x580 + node.id, node)
+        super().__init__(node)
         self._lock = lock
         self._blocked = blocked
 
