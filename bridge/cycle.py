@@ -67,6 +67,7 @@ class StopReason(Enum):
     DRIVE_DISABLED = 7  # the drive left Operation Enabled without a fault
     DRIVE_NMT = 8  # the drive's heartbeat reports boot-up or a non-operational NMT state
     ENABLE_TIMEOUT = 9  # the drive did not reach Operation Enabled within ENABLE_TIMEOUT_S
+    SYNC_CONFLICT = 10  # a SYNC the bridge did not send: a second SYNC producer on the bus
 
 
 class Command(IntEnum):
@@ -470,6 +471,12 @@ class CycleController:
     def _set_enabling(self) -> None:
         self.state = BridgeState.ENABLING
         self._enable_started_s = None
+
+    def stop_for(self, reason: StopReason, message: str) -> None:
+        """Stop the axis from outside the cycle (the I/O layer found a fault on the bus);
+        only while it is enabled, like the supervision of the cycle."""
+        if self.axis_enabled:
+            self._stop(reason, message)
 
     def _stop(self, reason: StopReason, message: str) -> bool:
         self.state = BridgeState.STOPPED

@@ -30,11 +30,19 @@ import canopen
 import numpy as np
 
 from plant_sim.axis import AxisKind
+from virtual_bus.contract import (
+    EMCY_LENGTH,
+    HEARTBEAT_LENGTH,
+    NMT_LENGTH,
+    SDO_LENGTH,
+    sdo_rx_cob_id,
+)
+from virtual_bus.frame_guard import FrameFault, FrameGuard
 from virtual_bus.sdo_server import CheckedSdoServer
 
-from .cycle import BridgeState, CycleController
+from .cycle import BridgeState, CycleController, StopReason
 from .errors import BridgeConfigError, PdoFrameError
-from .layout import RPDO1, SYNC_COB_ID, TPDO1, TPDO2, CobIds, check_node_id
+from .layout import NMT_COB_ID, RPDO1, SYNC_COB_ID, TPDO1, TPDO2, CobIds, check_node_id
 from .master import DriveInfo, DriveMaster, DriveSetup
 from .objects import ObjectServer, PdoCounters
 from .od import DEFAULT_DRIVE_ID, DEFAULT_EDS_PATH, DEFAULT_NODE_ID, load_od
@@ -154,8 +162,23 @@ class Bridge:
         self.counters = PdoCounters()
         self.scaling = Scaling.for_kind(kind)
         self.controller = CycleController(params, self.scaling, state=BridgeState.CONFIGURING)
+        #: every received frame passes it before a handler sees it (docs/bridge.md)
+        self.guard = FrameGuard(f"bridge {config.node_id}", self._classify, self._refused)
+        self._lengths = {
+            self.ids.tpdo1: TPDO1.dlc,
+            self.ids.tpdo2: TPDO2.dlc,
+            self.ids.emcy: EMCY_LENGTH,
+            self.ids.heartbeat: HEARTBEAT_LENGTH,
+            self.ids.sdo_tx: SDO_LENGTH,
+            sdo_rx_cob_id(config.node_id): SDO_LENGTH,
+            NMT_COB_ID: NMT_LENGTH,
+        }
         self.objects = ObjectServer(
-            self.controller, self.counters, self.scaling.load_increments_per_unit, config.drive_id
+            self.controller,
+            self.counters,
+            self.scaling.load_increments_per_unit,
+            config.drive_id,
+            self.guard,
         )
         self.objects.attach(self.node)
         self.timing = Timing() if keep_timing else None
@@ -182,29 +205,41 @@ class Bridge:
         self.peer_poll: Callable[[], int] | None = None
 
     # --- frames -----------------------------------------------------------------------------
+    def _classify(self, cob_id: int, length: int) -> FrameFault | None:
+        need = self._lengths.get(cob_id)
+        if need is None:
+            # the bridge produces SYNC (1005h bit 30): a SYNC it receives came from another node
+            if cob_id == SYNC_COB_ID:
+                return FrameFault.SECOND_SYNC_PRODUCER
+            return FrameFault.UNKNOWN_COB_ID
+        return None if length == need else FrameFault.BAD_LENGTH
+
+    def _refused(self, fault: FrameFault, cob_id: int) -> None:
+        if fault is FrameFault.BAD_LENGTH and cob_id in self._tpdo_ids:
+            self.counters.invalid += 1  # 2107h:03 counts TPDOs of the wrong length
+        elif fault is FrameFault.SECOND_SYNC_PRODUCER:
+            self.controller.stop_for(
+                StopReason.SYNC_CONFLICT,
+                f"a SYNC (0x{cob_id:03X}) the bridge did not send: a second SYNC producer "
+                "on the bus would run the drive on a time base the bridge does not know",
+            )
+
     def dispatch(self, msg: can.Message) -> None:
-        """Handle one received frame (TPDO slots, heartbeat, EMCY, canopen services)."""
+        """Handle one received frame (TPDO slots, heartbeat, EMCY, canopen services) after
+        the frame guard has admitted it."""
+        if not self.guard.check(msg):
+            return
         cid = msg.arbitration_id
         if cid == self._tpdo_ids[0]:
             self._tpdo(0, msg.data)
         elif cid == self._tpdo_ids[1]:
             self._tpdo(1, msg.data)
-        elif msg.is_error_frame or msg.is_remote_frame:
-            return
         elif cid == self.ids.heartbeat:
-            if len(msg.data) >= 1:
-                self.controller.on_heartbeat(msg.data[0], self.pacer.now())
+            self.controller.on_heartbeat(msg.data[0], self.pacer.now())
             self.network.notify(cid, msg.data, msg.timestamp)
         elif cid == self.ids.emcy:
-            if len(msg.data) >= 3:
-                code, register = _EMCY.unpack_from(msg.data)
-                self.controller.on_emcy(code, register)
-            else:
-                log.warning(
-                    "EMCY of drive %d with %d bytes ignored (needs 8)",
-                    self.config.drive_id,
-                    len(msg.data),
-                )
+            code, register = _EMCY.unpack_from(msg.data)
+            self.controller.on_emcy(code, register)
         else:
             self.network.notify(cid, msg.data, msg.timestamp)
 
