@@ -24,7 +24,7 @@ import canopen.network
 from canopen import LocalNode
 from canopen.objectdictionary import ObjectDictionary
 
-from virtual_bus.contract import HEARTBEAT_BASE, NmtCommand, NmtState
+from virtual_bus.contract import HEARTBEAT_BASE, NMT_COB_ID, NmtCommand, NmtState
 from virtual_bus.sdo_server import CheckedSdoServer
 
 logger = logging.getLogger(__name__)
@@ -214,10 +214,66 @@ class DriveNode(LocalNode):
         *,
         nmt: DriveNmt,
         lock: threading.RLock,
+        gate: Callable[[int, int], bool] | None = None,
     ) -> None:
+        self._gate = gate
+        self._gated_subscriptions: list[tuple[int, FrameCallback, FrameCallback]] = []
         super().__init__(node_id, od)
         # LocalNode registered its NmtSlave's heartbeat writer for 1017h; the drive handles
         # 1017h itself (time-mode dependent heartbeat), so drop it with the NmtSlave.
         self._write_callbacks.remove(self.nmt.on_write)
         self.nmt = nmt  # type: ignore[assignment]
         self.sdo = _GatedSdoServer(self, lock=lock, blocked=lambda: nmt.state is NmtState.STOPPED)
+
+    def associate_network(self, network: canopen.network.Network) -> None:
+        """As LocalNode's, but SDO and NMT frames pass ``gate(cob_id, length)`` first (the
+        drive's frame guard when it shares a Network it does not own)."""
+        super().associate_network(network)
+        if self._gate is None:
+            return
+        plain = ((self.sdo.rx_cobid, self.sdo.on_request), (NMT_COB_ID, self.nmt.on_command))
+        for cob_id, callback in plain:
+            wrapped = gated(self._gate, callback)
+            network.unsubscribe(cob_id, callback)
+            network.subscribe(cob_id, wrapped)
+            self._gated_subscriptions.append((cob_id, callback, wrapped))
+
+    def remove_network(self) -> None:
+        if self.has_network():  # LocalNode unsubscribes the plain callbacks: put them back
+            for cob_id, callback, wrapped in self._gated_subscriptions:
+                self.network.unsubscribe(cob_id, wrapped)
+                self.network.subscribe(cob_id, callback)
+        self._gated_subscriptions.clear()
+        super().remove_network()
+
+
+FrameCallback = Callable[[int, bytearray, float], None]
+
+
+def gated(gate: Callable[[int, int], bool], callback: FrameCallback) -> FrameCallback:
+    """``callback`` called only for frames ``gate(cob_id, length)`` admits."""
+
+    def run(can_id: int, data: bytearray, timestamp: float) -> None:
+        if gate(can_id, len(data)):
+            callback(can_id, data, timestamp)
+
+    return run
+
+
+class GuardedListener(can.Listener):
+    """Replaces canopen's MessageListener on a Network the drive owns: every frame passes the
+    frame guard (RTR, 29-bit ids, error frames, COB-ID, length, NMT state) first."""
+
+    def __init__(self, network: canopen.network.Network, check: Callable[[can.Message], bool]):
+        self.network = network
+        self._check = check
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if self._check(msg):
+            try:
+                self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+            except Exception:  # canopen's listener does the same: never kill the receive thread
+                logger.exception("handler of frame 0x%03X failed", msg.arbitration_id)
+
+    def stop(self) -> None:
+        pass

@@ -64,6 +64,8 @@ ENCODER_TOLERANCE: ObjectKey = (0x2101, 0)
 SETPOINT_TIMEOUT: ObjectKey = (0x2102, 0)
 SYNC_CYCLES: ObjectKey = (0x2103, 0)
 LOAD_MINUS_MOTOR: ObjectKey = (0x2104, 0)
+#: 2105h:01..07 refused frames by kind (virtual_bus.frame_guard.FrameFault values)
+FRAME_COUNTERS = 0x2105
 # --- CiA 402 --------------------------------------------------------------------------------
 ABORT_CONNECTION_OPTION: ObjectKey = (0x6007, 0)
 ERROR_CODE: ObjectKey = (0x603F, 0)
@@ -192,6 +194,8 @@ def _known_objects() -> dict[ObjectKey, ObjectSpec]:
         SETPOINT_TIMEOUT: (u8, rw),
         SYNC_CYCLES: (u32, ro),
         LOAD_MINUS_MOTOR: (i32, ro),
+        (FRAME_COUNTERS, 0): (u8, const),
+        **{(FRAME_COUNTERS, s): (u32, ro) for s in range(1, 8)},
         ABORT_CONNECTION_OPTION: (i16, rw),
         ERROR_CODE: (u16, ro),
         CONTROLWORD: (u16, rw),

@@ -333,6 +333,10 @@ class PdoEngine:
                 self._subscriber.subscribe(can_id, self._on_frame)
                 self._subscribed[can_id] = ch
 
+    def rpdo_cob_ids(self) -> frozenset[int]:
+        """CAN ids of the valid RPDOs (subscribed)."""
+        return frozenset(self._subscribed)
+
     def unsubscribe_all(self) -> None:
         for can_id in list(self._subscribed):
             self._subscriber.unsubscribe(can_id, self._on_frame)
