@@ -83,7 +83,6 @@ class _Transfer:
     data: bytearray = field(default_factory=bytearray)
     position: int = 0  # block upload: bytes acknowledged
     block_size: int = _MAX_BLOCK
-    crc: bool = False
     last_block_bytes: int = 0
 
 
@@ -251,7 +250,6 @@ class CheckedSdoServer(SdoServer):
                 self._init_upload(request)
                 return
             t.phase, t.data, t.block_size = _Phase.BLOCK_INIT, bytearray(data), block_size
-            t.crc = bool(command & 0x04)
             self.send_response(_HEADER.pack(0xC6, index, subindex) + _U32.pack(len(data)))
         elif cs == _CS_START and t.phase is _Phase.BLOCK_INIT:
             self._send_block()
@@ -265,7 +263,9 @@ class CheckedSdoServer(SdoServer):
             t.block_size = block_size
             if t.position >= len(t.data):
                 unused = (7 - len(t.data) % 7) % 7
-                crc = crc16_ccitt(bytes(t.data)) if t.crc else 0
+                # sc = 1: this server supports CRC; the CRC is sent even when the client's
+                # cc = 0 (it then ignores the field) -- canopen's client checks it whenever sc = 1
+                crc = crc16_ccitt(bytes(t.data))
                 t.phase = _Phase.BLOCK_END
                 self.send_response(struct.pack("<BH", 0xC1 | (unused << 2), crc) + bytes(5))
             else:
