@@ -151,7 +151,7 @@ def test_random_writes_get_the_cia301_code_and_refusals_change_nothing(server: t
     sdo, od, snapshot = server
     rng = random.Random(20261123)
     keys = sorted(od)
-    indices = sorted({i for i, _ in keys}) + [0x2FFF, 0x5000]
+    indices = [*sorted({i for i, _ in keys}), 0x2FFF, 0x5000]
     codes: dict[int | None, int] = {}
     for n in range(RANDOM_WRITES):
         if rng.random() < 0.8:
@@ -198,9 +198,11 @@ def test_block_upload_of_a_write_only_object_and_block_download(server: tuple) -
             sdo.open(index, sub, "rb", block_transfer=True)
         assert info.value.code == oracle.WRITE_ONLY
     index, sub = next(key for key, obj in sorted(od.items()) if obj.access == "rw")
-    with pytest.raises(SdoAbortedError) as info:
-        with sdo.open(index, sub, "wb", size=4, block_transfer=True) as f:
-            f.write(b"\x00\x00\x00\x00")
+    with (
+        pytest.raises(SdoAbortedError) as info,
+        sdo.open(index, sub, "wb", size=4, block_transfer=True) as f,
+    ):
+        f.write(b"\x00\x00\x00\x00")
     assert info.value.code == 0x0504_0001  # block download: command specifier not valid
 
 
