@@ -27,8 +27,9 @@ TOO_HIGH = 0x0609_0031
 TOO_LOW = 0x0609_0032
 DEVICE_STATE = 0x0800_0022
 #: Codes the device's own rules may answer a well-formed write in range with.
-APPLICATION_CODES = frozenset({VALUE_RANGE, TOO_HIGH, TOO_LOW, DEVICE_STATE, 0x0604_0041,
-                               0x0604_0042, 0x0602_0000})
+APPLICATION_CODES = frozenset(
+    {VALUE_RANGE, TOO_HIGH, TOO_LOW, DEVICE_STATE, 0x0604_0041, 0x0604_0042, 0x0602_0000}
+)
 #: Marker: success or one of APPLICATION_CODES.
 APPLICATION = -1
 
