@@ -142,3 +142,34 @@ def expected_read(od: dict[tuple[int, int], Declared], index: int, sub: int) -> 
     if obj is None:
         return NO_SUBINDEX
     return WRITE_ONLY if obj.access == "wo" else None
+
+
+def _fix_canopen_writable_stream() -> None:
+    """Work around a python-canopen 2.4 client bug this project's CiA 301 server exposes.
+
+    ``WritableStream.__init__`` sets ``_done = False`` and ``_exp_header = None`` before it
+    initiates a segmented download; when the server refuses the initiate (0601 0002, 0607
+    0012, ... -- CiA 301 allows and CANopenNode does this), ``__init__`` raises and the
+    half-built stream's finalizer (``IOBase.__del__`` -> ``close()``) later sends a stray
+    "last segment" request. Run by the garbage collector inside another ``send_message``, it
+    deadlocks on the network's send lock; otherwise its answer is taken for the answer to the
+    next request. canopen's own server accepted every initiate, so this never showed. Fix:
+    a stream whose initiate failed counts as done."""
+    from canopen.sdo import client
+
+    original = client.WritableStream.__init__
+    if getattr(original, "_fixed", False):
+        return
+
+    def init(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        try:
+            original(self, *args, **kwargs)
+        except BaseException:
+            self._done = True
+            raise
+
+    init._fixed = True  # type: ignore[attr-defined]
+    client.WritableStream.__init__ = init  # type: ignore[method-assign]
+
+
+_fix_canopen_writable_stream()

@@ -14,6 +14,7 @@ from collections.abc import Iterator
 import can
 import canopen
 import pytest
+import sdo_oracle  # noqa: F401  (tests/ helper: works around a canopen client bug)
 from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary import datatypes as dt
 from canopen.sdo import SdoAbortedError

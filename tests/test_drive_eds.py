@@ -11,6 +11,7 @@ from pathlib import Path
 
 import canopen
 import pytest
+import sdo_oracle  # noqa: F401  (tests/ helper: works around a canopen client bug)
 from canopen import objectdictionary as cod
 from canopen.sdo import SdoAbortedError
 
