@@ -29,6 +29,7 @@ from enum import Enum, IntEnum
 from canopen.profiles.p402 import State402
 
 from regulator import BacklashRegulator, PositionController
+from virtual_bus.contract import NmtState
 
 from .errors import ParameterError, SdoAbort
 from .interpolator import Interpolator, Move, Table
@@ -40,9 +41,9 @@ log = logging.getLogger("bridge")
 
 #: Time the drive gets to reach Operation Enabled after an enable command, s.
 ENABLE_TIMEOUT_S = 1.0
-#: NMT state byte of an operational node in its heartbeat (CiA 301).
-NMT_OPERATIONAL = 0x05
-NMT_BOOTUP = 0x00
+#: NMT state bytes in a heartbeat (CiA 301).
+NMT_OPERATIONAL = NmtState.OPERATIONAL
+NMT_BOOTUP = NmtState.INITIALISING
 
 
 class BridgeState(Enum):
@@ -71,6 +72,7 @@ class StopReason(Enum):
     POSITION_LIMIT = 10  # the load scale is outside 2014h and no move heads back inside
     CYCLE_OVERRUN = 11  # the loop overran its cycle (SYNC slots skipped) too often in a row
     INTERNAL_ERROR = 12  # the controller's own step failed (a bug; the message names it)
+    SYNC_CONFLICT = 13  # a SYNC the bridge did not send: a second SYNC producer on the bus
 
 
 class Command(IntEnum):
@@ -594,6 +596,12 @@ class CycleController:
     def _set_enabling(self) -> None:
         self.state = BridgeState.ENABLING
         self._enable_started_s = None
+
+    def stop_for(self, reason: StopReason, message: str) -> None:
+        """Stop the axis from outside the cycle (the I/O layer found a fault on the bus);
+        only while it is enabled, like the supervision of the cycle."""
+        if self.axis_enabled:
+            self._stop(reason, message)
 
     def _stop(self, reason: StopReason, message: str) -> bool:
         self.state = BridgeState.STOPPED

@@ -1,9 +1,10 @@
 """Rendering of the bridge's object table (:data:`bridge.od.OBJECTS`) as a CiA 306 EDS.
 
 ``python -m bridge eds`` writes ``config/bridge.eds`` with :func:`render_eds`; the output is
-deterministic (no dates) so that a test can compare the committed file with it. Writable
-objects carry ``StorageLocation`` (a key python-canopen reads into ``storage_location``, as
-CANopenNode's EDS files do): ``PERSIST`` for the parameters 1010h stores, ``RAM`` otherwise.
+deterministic (fixed dates, see FILE_REVISION) so that a test can compare the committed file
+with it. Writable objects carry ``StorageLocation`` (a key python-canopen reads into
+``storage_location``, as CANopenNode's EDS files do): ``PERSIST`` for the parameters 1010h
+stores, ``RAM`` otherwise.
 """
 
 from __future__ import annotations
@@ -30,6 +31,10 @@ from .od import (
 )
 
 _MANDATORY = (DEVICE_TYPE, ERROR_REGISTER, IDENTITY)
+#: Bump with every change of the object table; the dates are fixed so that the rendering
+#: stays deterministic (CiA 306 formats: hh:mm(AM|PM), mm-dd-yyyy).
+FILE_REVISION = 1
+MODIFIED = ("11:00PM", "11-23-2026")
 
 
 def _fmt_value(data_type: int, value: int | float | str) -> str:
@@ -101,11 +106,12 @@ COMMENTS = (
     "move targets/feeds in load-scale increments (nm or urad) like the drive's 60E4h:01.",
     "Invalid writes: 0609 0030/31/32; locked while enabled: 0800 0022; read-only: 0601 0002.",
     "StorageLocation=PERSIST: saved by 1010h ('save') and loaded at start-up; RAM: not stored.",
+    "Refused frames are counted in 2110h (docs/canopen_layout.md).",
 )
 
 
 def render_eds() -> str:
-    """The EDS text of :data:`OBJECTS` (deterministic; no dates)."""
+    """The EDS text of :data:`OBJECTS` (deterministic: fixed dates)."""
     indices = [obj.index for obj in OBJECTS]
     mandatory = [i for i in indices if i in _MANDATORY]
     optional = [i for i in indices if i < 0x2000 and i not in _MANDATORY]
@@ -114,10 +120,15 @@ def render_eds() -> str:
         "[FileInfo]",
         "FileName=bridge.eds",
         "FileVersion=1",
-        "FileRevision=0",
+        f"FileRevision={FILE_REVISION}",
         "EDSVersion=4.0",
         "Description=Backlash regulator bridge (CANopen master side, CiA 402 CSV drive)",
+        "CreationTime=12:00PM",
+        "CreationDate=01-01-2025",
         "CreatedBy=backlash-bridge",
+        f"ModificationTime={MODIFIED[0]}",
+        f"ModificationDate={MODIFIED[1]}",
+        "ModifiedBy=backlash-bridge",
         "",
         "[DeviceInfo]",
         "VendorName=backlash-bridge project",

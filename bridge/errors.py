@@ -1,30 +1,13 @@
 """Exceptions of :mod:`bridge`: one root, each subclass also the matching builtin.
 
 Protocol codes travel as attributes: :class:`ParameterError` carries the CiA 301 SDO abort
-code an SDO server answers with, :class:`DriveSetupError` the abort code the drive sent (if
-any) and the object that failed.
+code (:class:`virtual_bus.contract.SdoAbort`) an SDO server answers with,
+:class:`DriveSetupError` the abort code the drive sent (if any) and the object that failed.
 """
 
 from __future__ import annotations
 
-from enum import IntEnum
-
-
-class SdoAbort(IntEnum):
-    """CiA 301 SDO abort codes the bridge sends or understands (table 22 of CiA 301)."""
-
-    WRITE_ONLY = 0x0601_0001  # attempt to read a write-only object
-    READ_ONLY = 0x0601_0002  # attempt to write a read-only object
-    NO_OBJECT = 0x0602_0000  # object does not exist in the object dictionary
-    LENGTH_MISMATCH = 0x0607_0010  # data type does not match, length of service parameter
-    NO_SUBINDEX = 0x0609_0011  # sub-index does not exist
-    VALUE_RANGE = 0x0609_0030  # value range of parameter exceeded (only for write access)
-    TOO_HIGH = 0x0609_0031  # value of parameter written too high
-    TOO_LOW = 0x0609_0032  # value of parameter written too low
-    HARDWARE = 0x0606_0000  # access failed due to a hardware error (store file not written)
-    GENERAL = 0x0800_0000  # general error
-    NOT_STORED = 0x0800_0020  # data cannot be transferred or stored (1010h/1011h signature)
-    DEVICE_STATE = 0x0800_0022  # data cannot be stored because of the present device state
+from virtual_bus.contract import SdoAbort as SdoAbort
 
 
 class BridgeError(Exception):

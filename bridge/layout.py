@@ -10,10 +10,21 @@ import struct
 from dataclasses import dataclass
 from enum import Enum
 
-from .errors import BridgeConfigError
+from virtual_bus.contract import NMT_COB_ID as NMT_COB_ID
+from virtual_bus.contract import SYNC_COB_ID as SYNC_COB_ID
+from virtual_bus.contract import (
+    DataType,
+    emcy_cob_id,
+    heartbeat_cob_id,
+    mapping_entry,
+    pdo_struct,
+    rpdo_cob_id,
+    sdo_tx_cob_id,
+    tpdo_cob_id,
+    type_size,
+)
 
-SYNC_COB_ID = 0x080
-NMT_COB_ID = 0x000
+from .errors import BridgeConfigError
 
 
 def check_node_id(name: str, node_id: object) -> int:
@@ -25,16 +36,22 @@ def check_node_id(name: str, node_id: object) -> int:
 
 @dataclass(frozen=True)
 class MappedObject:
-    """One mapping entry: object index, sub-index and length in bits."""
+    """One mapping entry: object index, sub-index and CiA 301 data type."""
 
     index: int
     subindex: int
-    bits: int
+    data_type: DataType
+
+    @property
+    def bits(self) -> int:
+        size = type_size(self.data_type)
+        assert size is not None
+        return 8 * size
 
     @property
     def entry(self) -> int:
         """The UNSIGNED32 mapping entry of CiA 301 (index << 16 | sub << 8 | bits)."""
-        return (self.index << 16) | (self.subindex << 8) | self.bits
+        return mapping_entry(self.index, self.subindex, self.bits)
 
 
 @dataclass(frozen=True)
@@ -45,15 +62,18 @@ class PdoSpec:
     transmit: bool  # TPDO of the drive (drive -> bridge)
     transmission_type: int
     mapping: tuple[MappedObject, ...]
-    fmt: str  # struct format of the payload
 
     @property
     def dlc(self) -> int:
         return sum(m.bits for m in self.mapping) // 8
 
+    @property
+    def struct(self) -> struct.Struct:
+        """Codec of the payload (the contract's PDO entry codec)."""
+        return pdo_struct([m.data_type for m in self.mapping])
+
     def cob_id(self, drive_id: int) -> int:
-        base = (0x180 if self.transmit else 0x200) + 0x100 * (self.number - 1)
-        return base + drive_id
+        return (tpdo_cob_id if self.transmit else rpdo_cob_id)(self.number, drive_id)
 
     @property
     def comm_index(self) -> int:
@@ -67,22 +87,22 @@ class PdoSpec:
 
 
 #: TPDO1: 6064h position actual value (I32) + 60E4h:01 load scale (I32), every SYNC.
-TPDO1 = PdoSpec(1, True, 1, (MappedObject(0x6064, 0, 32), MappedObject(0x60E4, 1, 32)), "<ii")
+_I16, _I32, _U16 = DataType.INTEGER16, DataType.INTEGER32, DataType.UNSIGNED16
+TPDO1 = PdoSpec(1, True, 1, (MappedObject(0x6064, 0, _I32), MappedObject(0x60E4, 1, _I32)))
 #: TPDO2: 6041h statusword (U16) + 6077h torque actual (I16) + 606Ch velocity actual (I32).
 TPDO2 = PdoSpec(
     2,
     True,
     1,
-    (MappedObject(0x6041, 0, 16), MappedObject(0x6077, 0, 16), MappedObject(0x606C, 0, 32)),
-    "<Hhi",
+    (MappedObject(0x6041, 0, _U16), MappedObject(0x6077, 0, _I16), MappedObject(0x606C, 0, _I32)),
 )
 #: RPDO1: 6040h controlword (U16) + 60FFh target velocity (I32), asynchronous reception.
-RPDO1 = PdoSpec(1, False, 255, (MappedObject(0x6040, 0, 16), MappedObject(0x60FF, 0, 32)), "<Hi")
+RPDO1 = PdoSpec(1, False, 255, (MappedObject(0x6040, 0, _U16), MappedObject(0x60FF, 0, _I32)))
 
 LAYOUT: tuple[PdoSpec, ...] = (TPDO1, TPDO2, RPDO1)
-TPDO1_STRUCT = struct.Struct(TPDO1.fmt)
-TPDO2_STRUCT = struct.Struct(TPDO2.fmt)
-RPDO1_STRUCT = struct.Struct(RPDO1.fmt)
+TPDO1_STRUCT = TPDO1.struct
+TPDO2_STRUCT = TPDO2.struct
+RPDO1_STRUCT = RPDO1.struct
 assert TPDO1_STRUCT.size == TPDO1.dlc and TPDO2_STRUCT.size == TPDO2.dlc
 assert RPDO1_STRUCT.size == RPDO1.dlc
 
@@ -110,16 +130,16 @@ class CobIds:
 
     @property
     def emcy(self) -> int:
-        return 0x080 + self.drive_id
+        return emcy_cob_id(self.drive_id)
 
     @property
     def heartbeat(self) -> int:
-        return 0x700 + self.drive_id
+        return heartbeat_cob_id(self.drive_id)
 
     @property
     def sdo_tx(self) -> int:
         """Drive's SDO responses (server -> client)."""
-        return 0x580 + self.drive_id
+        return sdo_tx_cob_id(self.drive_id)
 
 
 # --- the layout the cycle decodes (built at start-up from what the drive has) ------------------

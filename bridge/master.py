@@ -37,6 +37,7 @@ import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from plant_sim.axis import AxisKind
+from virtual_bus.contract import COB_ID_INVALID, NmtCommand
 
 from .adapt import (
     CANDIDATES,
@@ -57,9 +58,6 @@ from .scaling import LOAD_INCREMENTS_PER_UNIT, Scaling
 
 log = logging.getLogger("bridge")
 
-NMT_START = 0x01
-NMT_PRE_OPERATIONAL = 0x80
-COB_ID_INVALID = 0x8000_0000
 _U8 = struct.Struct("<B")
 _I8 = struct.Struct("<b")
 _U16 = struct.Struct("<H")
@@ -380,7 +378,7 @@ class DriveMaster:
     def configure(self) -> tuple[Plan, DriveFacts, int]:
         """Steps 1-5 of the module docstring (the drive stays pre-operational); returns the
         plan, the facts and the mode shown in 6061h."""
-        self.drive.nmt.send_command(NMT_PRE_OPERATIONAL)
+        self.drive.nmt.send_command(NmtCommand.ENTER_PRE_OPERATIONAL)
         facts = self.read_facts()
         the_plan = self.plan(facts)
         while True:  # each round leaves out one more object the drive refused to map
@@ -418,7 +416,7 @@ class DriveMaster:
         encoder.sdo.RESPONSE_TIMEOUT = self.setup.sdo_timeout_s
         encoder.sdo.MAX_RETRIES = self.setup.sdo_retries
         sub = DriveMaster(encoder, self.setup, self._sleep, self._wall)
-        encoder.nmt.send_command(NMT_PRE_OPERATIONAL)
+        encoder.nmt.send_command(NmtCommand.ENTER_PRE_OPERATIONAL)
         device_type = sub._u32(0x1000, 0)
         if device_type is not None and device_type & 0xFFFF != 406:
             raise DriveSetupError(
@@ -438,7 +436,7 @@ class DriveMaster:
         sub.configure_pdo(tpdo)
         sub.write(0x1017, 0, _U16.pack(self.setup.heartbeat_producer_ms), " (producer heartbeat)")
         self.transfers += sub.transfers
-        encoder.nmt.send_command(NMT_START)
+        encoder.nmt.send_command(NmtCommand.START)
 
     def run(self) -> DriveInfo:
         """The whole start-up sequence (module docstring); returns what it learned."""
@@ -447,7 +445,7 @@ class DriveMaster:
             log.warning("drive %d: %s", self.drive.id, note)
         if the_plan.encoder_id is not None:
             self.configure_encoder(the_plan.encoder_id)
-        self.drive.nmt.send_command(NMT_START)
+        self.drive.nmt.send_command(NmtCommand.START)
         sw = self.enable_operation()
         log.info(
             "drive %d configured: %s, rated torque %s, statusword 0x%04X; layout:\n%s",

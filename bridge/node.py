@@ -40,10 +40,19 @@ import canopen
 import numpy as np
 
 from plant_sim.axis import AxisKind
+from virtual_bus.contract import (
+    EMCY_LENGTH,
+    HEARTBEAT_LENGTH,
+    NMT_LENGTH,
+    SDO_LENGTH,
+    sdo_rx_cob_id,
+)
+from virtual_bus.frame_guard import FrameFault, FrameGuard
+from virtual_bus.sdo_server import CheckedSdoServer
 
 from .cycle import CW_RUNNING, BridgeState, CycleController, StopReason
 from .errors import BridgeConfigError, PdoFrameError
-from .layout import SYNC_COB_ID, CobIds, CycleLayout, check_node_id, contract_layout
+from .layout import NMT_COB_ID, SYNC_COB_ID, CobIds, CycleLayout, check_node_id, contract_layout
 from .loopstats import Timing
 from .master import DriveInfo, DriveMaster, DriveSetup
 from .objects import ObjectServer, PdoCounters
@@ -203,6 +212,7 @@ class Bridge:
         self.port = BusPort(bus, bus_log)
         self.network = canopen.Network(self.port)  # type: ignore[arg-type]
         self.node = canopen.LocalNode(config.node_id, load_od(config.eds_path, config.node_id))
+        self.node.sdo = CheckedSdoServer(self.node)  # before the node joins the network
         self.network.add_node(self.node)
         self.drive = canopen.RemoteNode(config.drive_id, canopen.ObjectDictionary())
         self.network.add_node(self.drive)
@@ -210,12 +220,24 @@ class Bridge:
         self.scaling = Scaling.for_kind(kind)
         self.controller = CycleController(params, self.scaling, state=BridgeState.CONFIGURING)
         store = None if config.store_path is None else ParameterStore(config.store_path)
+        #: every received frame passes it before a handler sees it (docs/bridge.md)
+        self.guard = FrameGuard(f"bridge {config.node_id}", self._classify, self._refused)
+        #: lengths of the frames that are not the layout's (those are added by use_layout)
+        self._fixed_lengths = {
+            self.ids.emcy: EMCY_LENGTH,
+            self.ids.heartbeat: HEARTBEAT_LENGTH,
+            self.ids.sdo_tx: SDO_LENGTH,
+            sdo_rx_cob_id(config.node_id): SDO_LENGTH,
+            NMT_COB_ID: NMT_LENGTH,
+        }
+        self._lengths = dict(self._fixed_lengths)
         self.objects = ObjectServer(
             self.controller,
             self.counters,
             self.scaling.load_increments_per_unit,
             config.drive_id,
             store,
+            self.guard,
         )
         if store is not None and (stored := store.load()) is not None:
             self.controller.set_params(self.objects.apply_stored(stored, str(store.path)))
@@ -258,6 +280,9 @@ class Bridge:
         self._tpdo_ids = layout.can_ids
         self._tpdo_dlc = tuple(f.dlc for f in layout.frames)
         self._slot_of = {cid: i for i, cid in enumerate(self._tpdo_ids)}
+        self._lengths = self._fixed_lengths | {f.can_id: f.dlc for f in layout.frames}
+        if self._encoder_heartbeat >= 0:
+            self._lengths[self._encoder_heartbeat] = HEARTBEAT_LENGTH
         self._slots: list[bytearray | None] = [None] * len(self._tpdo_ids)
         self._rpdo_msg = CycleMessage(
             arbitration_id=layout.rpdo_can_id, data=bytes(layout.rpdo_dlc), is_extended_id=False
@@ -266,8 +291,33 @@ class Bridge:
         self._rpdo_msg.data = self.controller.rpdo_payload  # rewritten in place every cycle
 
     # --- frames -----------------------------------------------------------------------------
+    def _classify(self, cob_id: int, length: int) -> FrameFault | None:
+        need = self._lengths.get(cob_id)
+        if need is None:
+            # the bridge produces SYNC (1005h bit 30): a SYNC it receives came from another node
+            if cob_id == SYNC_COB_ID:
+                return FrameFault.SECOND_SYNC_PRODUCER
+            return FrameFault.UNKNOWN_COB_ID
+        return None if length == need else FrameFault.BAD_LENGTH
+
+    def _refused(self, fault: FrameFault, cob_id: int) -> None:
+        if fault is FrameFault.BAD_LENGTH and cob_id in self._tpdo_ids:
+            self.counters.invalid += 1  # 2107h:03 counts TPDOs of the wrong length
+        elif fault is FrameFault.SECOND_SYNC_PRODUCER:
+            self.controller.stop_for(
+                StopReason.SYNC_CONFLICT,
+                f"a SYNC (0x{cob_id:03X}) the bridge did not send: a second SYNC producer "
+                "on the bus would run the drive on a time base the bridge does not know",
+            )
+
     def dispatch(self, msg: can.Message) -> None:
-        """Handle one received frame (TPDO slots, heartbeat, EMCY, canopen services)."""
+        """Handle one received frame (TPDO slots, heartbeat, EMCY, canopen services) after
+        the frame guard has admitted it."""
+        if self.guard.check(msg):
+            self._handle(msg)
+
+    def _handle(self, msg: can.Message) -> None:
+        """A frame the guard has admitted (see :meth:`dispatch`)."""
         cid = msg.arbitration_id
         slot = self._slot_of.get(cid)
         if slot is not None and not msg.is_remote_frame:
@@ -278,19 +328,11 @@ class Bridge:
             if len(msg.data) >= 1:
                 self.controller.on_encoder_heartbeat(msg.data[0], self.pacer.now())
         elif cid == self.ids.heartbeat:
-            if len(msg.data) >= 1:
-                self.controller.on_heartbeat(msg.data[0], self.pacer.now())
+            self.controller.on_heartbeat(msg.data[0], self.pacer.now())
             self.network.notify(cid, msg.data, msg.timestamp)
         elif cid == self.ids.emcy:
-            if len(msg.data) >= 3:
-                code, register = _EMCY.unpack_from(msg.data)
-                self.controller.on_emcy(code, register)
-            else:
-                log.warning(
-                    "EMCY of drive %d with %d bytes ignored (needs 8)",
-                    self.config.drive_id,
-                    len(msg.data),
-                )
+            code, register = _EMCY.unpack_from(msg.data)
+            self.controller.on_emcy(code, register)
         else:
             self.network.notify(cid, msg.data, msg.timestamp)
 
@@ -346,6 +388,7 @@ class Bridge:
                 self.controller.encoder_id = info.encoder_id
                 self._encoder_heartbeat = 0x700 + info.encoder_id
                 self._supervision_ids = self._supervision_ids | {self._encoder_heartbeat}
+                self._lengths[self._encoder_heartbeat] = HEARTBEAT_LENGTH
         self.controller.restart_supervision()
         self.controller.state = BridgeState.ENABLING
         return self.drive_info
@@ -357,13 +400,15 @@ class Bridge:
         are supervision inputs of this very cycle and cheap (a few assignments): handled now;
         anything else (SDO, NMT, what canopen handles) waits in the service ring for the time
         between cycles."""
+        if not self.guard.check(msg):  # counted and logged by the guard; never raised
+            return
         cid = msg.arbitration_id
         slot = self._slot_of.get(cid)
         if slot is not None and not msg.is_remote_frame:
             self._tpdo(slot, msg.data)
         elif cid in self._supervision_ids:
             try:
-                self.dispatch(msg)
+                self._handle(msg)
             except Exception:
                 self.timing.errors += 1
                 log.exception("frame 0x%03X: handling failed; ignored", cid)
@@ -373,9 +418,9 @@ class Bridge:
             self.timing.service_dropped += 1
 
     def _serve_one(self) -> None:
-        msg = self._service.popleft()
+        msg = self._service.popleft()  # admitted by the guard in _receive
         try:
-            self.dispatch(msg)
+            self._handle(msg)
         except Exception:  # a tool's bad request must not end the loop
             self.timing.errors += 1
             log.exception("frame 0x%03X: handling failed; ignored", msg.arbitration_id)

@@ -20,8 +20,10 @@ from dataclasses import dataclass, replace
 import canopen
 from canopen.sdo import SdoAbortedError
 
+from virtual_bus.frame_guard import FrameFault, FrameGuard
+
 from . import od as objdict
-from .cycle import Command, CycleController
+from .cycle import BridgeState, Command, CycleController
 from .errors import ParameterError, SdoAbort, StoreError
 from .interpolator import Move
 from .params import BridgeParams, check_field
@@ -128,12 +130,14 @@ class ObjectServer:
         load_increments_per_unit: float,
         drive_id: int,
         store: ParameterStore | None = None,
+        guard: FrameGuard | None = None,
     ) -> None:
         self.store = store
         self.controller = controller
         self.counters = counters
         self._inc_per_unit = load_increments_per_unit
         self.drive_id = drive_id
+        self.guard = guard
         self._last_target = 0
         self.writes_refused = 0
 
@@ -163,6 +167,9 @@ class ObjectServer:
             k = self.counters
             values = (k.missed, k.late, k.invalid, k.cycles, k.missed_cycles)
             return _U32.pack(values[subindex - 1] & 0xFFFF_FFFF) if subindex <= 5 else None
+        if index == objdict.FRAME_COUNTERS and subindex:
+            count = self.guard.count(FrameFault(subindex)) if self.guard is not None else 0
+            return _U32.pack(count & 0xFFFF_FFFF)
         reader = _LIVE.get(index)
         return None if reader is None or subindex else reader(self, c)
 
@@ -203,15 +210,17 @@ class ObjectServer:
             c.start_move(move)
             self._last_target = target
         elif index == objdict.COMMAND:
-            value = _U8.unpack(raw)[0]
-            if value not in {int(cmd) for cmd in Command}:
+            self._command(_U8.unpack(raw)[0])
+        elif index == objdict.COB_ID_SYNC:
+            value = _U32.unpack(raw)[0]
+            if value != objdict.SYNC_COB_ID_VALUE:
                 raise ParameterError(
-                    f"command = {value}: allowed 1 (enable), 2 (disable), 3 (reset)",
-                    field="command",
+                    f"1005h = 0x{value:08X}: the bridge is the SYNC producer on 0x080; "
+                    f"allowed only 0x{objdict.SYNC_COB_ID_VALUE:08X}",
+                    field="cob_id_sync",
                     value=value,
                     abort_code=SdoAbort.VALUE_RANGE,
                 )
-            c.command(Command(value))
         elif index in (objdict.STORE_PARAMETERS, objdict.RESTORE_DEFAULTS) and subindex == 1:
             self._store_command(index, _U32.unpack(raw)[0])
         else:
@@ -313,6 +322,27 @@ class ObjectServer:
             return replace(self.controller.params, **changes)
         except ParameterError as exc:
             raise StoreError(f"{where}: stored value refused: {exc}", path=where) from None
+
+    def _command(self, value: int) -> None:
+        """2020h: 0 idle (nothing), 1 enable, 2 disable, 3 reset; the EDS range 0..3 is
+        checked by the SDO server. A command the state does not allow (enable while enabled,
+        disable while disabled, reset without a stop) is refused with 0800 0022."""
+        if value == 0:
+            return
+        c = self.controller
+        command = Command(value)
+        if (command is Command.ENABLE and c.axis_enabled) or (
+            command is Command.DISABLE and c.state is BridgeState.DISABLED
+        ):
+            raise ParameterError(
+                f"command {command.name}: the axis is already "
+                f"{'enabled' if command is Command.ENABLE else 'disabled'} "
+                f"(state {c.state.name})",
+                field="command",
+                value=value,
+                abort_code=SdoAbort.DEVICE_STATE,
+            )
+        c.command(command)
 
     def _set(self, field: str, value: object) -> None:
         c = self.controller

@@ -119,6 +119,7 @@ BETA, LAMBDA, FOLLOWING_ERROR, MOTOR_LOAD_DIFF, STATE, STOP_REASON, STOP_MESSAGE
     0x2100, 0x2107
 )
 PDO_COUNTERS, SPEED_SETPOINT, POSITION_REFERENCE, DRIVE_ERROR = range(0x2107, 0x210B)
+FRAME_COUNTERS = 0x2110
 
 #: 1005h: bit 30 set = this node produces SYNC, COB-ID 0x080.
 SYNC_COB_ID_VALUE = 0x4000_0080
@@ -146,9 +147,10 @@ OBJECTS: tuple[Entry | Group, ...] = (
         COB_ID_SYNC,
         "COB-ID SYNC message",
         U32,
-        CONST,
+        RW,
         SYNC_COB_ID_VALUE,
-        description="bit 30: the bridge is the SYNC producer; COB-ID 0x080",
+        description="bit 30: the bridge is the SYNC producer; COB-ID 0x080 (rw as CiA 301 "
+        "defines it; only this value is accepted, others 0609 0030)",
     ),
     _var(
         CYCLE_PERIOD,
@@ -409,8 +411,9 @@ OBJECTS: tuple[Entry | Group, ...] = (
         WO,
         0,
         "",
-        "1: enable, 2: disable, 3: reset a stop (then enable); others: 0609 0030",
-        1,
+        "0: idle (no command), 1: enable, 2: disable, 3: reset a stop (then enable); "
+        "above 3: 0609 0031; not possible in the present state: 0800 0022",
+        0,
         3,
     ),
     # --- live values (read only) ------------------------------------------------------------
@@ -503,6 +506,23 @@ OBJECTS: tuple[Entry | Group, ...] = (
         0,
         "",
         "last EMCY error code of the drive (0: none)",
+    ),
+    Group(
+        FRAME_COUNTERS,
+        "Refused frames",
+        ObjectKind.RECORD,
+        tuple(
+            Entry(FRAME_COUNTERS, sub, name, U32, RO, 0, "frames", text)
+            for sub, name, text in (
+                (1, "Bad length", "data length not the one the service at its COB-ID needs"),
+                (2, "Unknown COB-ID", "no service of the bridge consumes it"),
+                (3, "Not allowed in state", "the NMT state does not allow the service"),
+                (4, "Second SYNC producer", "SYNC frames the bridge did not send (axis stops)"),
+                (5, "Remote frames", "RTR frames (no remote service here)"),
+                (6, "Extended identifiers", "29-bit identifiers"),
+                (7, "Error frames", "error frames reported by the interface"),
+            )
+        ),
     ),
 )
 

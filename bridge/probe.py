@@ -21,6 +21,7 @@ from canopen.objectdictionary import ODVariable
 
 from plant_sim.axis import AxisKind
 from virtual_bus import BusConfig, open_bus
+from virtual_bus.contract import NmtCommand
 
 from .adapt import (
     CANDIDATES,
@@ -32,7 +33,7 @@ from .adapt import (
 )
 from .errors import BridgeConfigError, DriveSetupError
 from .layout import check_node_id
-from .master import NMT_PRE_OPERATIONAL, DriveMaster, DriveSetup
+from .master import DriveMaster, DriveSetup
 from .node import pumping
 from .profile import DriveProfile, LoadSource, ModeChoice, ObjectKey, format_key, render_profile
 from .scaling import LOAD_INCREMENTS_PER_UNIT
@@ -176,7 +177,7 @@ def probe_drive(bus: can.BusABC, drive_id: int, setup: DriveSetup | None = None)
         network.notify(msg.arbitration_id, msg.data, msg.timestamp)
 
     with pumping(bus.recv, handle, "bridge-probe"):
-        drive.nmt.send_command(NMT_PRE_OPERATIONAL)
+        drive.nmt.send_command(NmtCommand.ENTER_PRE_OPERATIONAL)
         return master.read_facts()
 
 

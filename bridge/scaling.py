@@ -20,19 +20,22 @@ import math
 from dataclasses import dataclass
 
 from plant_sim.axis import AxisKind
+from virtual_bus.contract import INT32_MAX as INT32_MAX
+from virtual_bus.contract import INT32_MIN as INT32_MIN
+from virtual_bus.contract import LOAD_INCREMENTS_PER_M, LOAD_INCREMENTS_PER_RAD, PERMILLE
+from virtual_bus.contract import MOTOR_INCREMENTS_PER_REV as MOTOR_INCREMENTS_PER_REV
 
 from .errors import BridgeConfigError
 
-#: Motor encoder increments per motor revolution (6064h, 606Ch, 60FFh).
-MOTOR_INCREMENTS_PER_REV = 1 << 20
 #: Motor encoder increments per rad.
 MOTOR_INCREMENTS_PER_RAD = MOTOR_INCREMENTS_PER_REV / (2.0 * math.pi)
 #: rad per motor encoder increment.
 MOTOR_RAD_PER_INCREMENT = 1.0 / MOTOR_INCREMENTS_PER_RAD
 #: Load-scale increments (60E4h:01) per load unit: nm per m, µrad per rad.
-LOAD_INCREMENTS_PER_UNIT = {AxisKind.LINEAR: 1e9, AxisKind.ROTARY: 1e6}
-#: Largest INTEGER32 value (60FFh).
-INT32_MAX = (1 << 31) - 1
+LOAD_INCREMENTS_PER_UNIT = {
+    AxisKind.LINEAR: LOAD_INCREMENTS_PER_M,
+    AxisKind.ROTARY: LOAD_INCREMENTS_PER_RAD,
+}
 
 
 @dataclass(frozen=True)
@@ -80,7 +83,7 @@ class Scaling:
     def torque_nm_per_permille(self) -> float:
         """N·m per 6077h unit (per mille of the rated torque); 1.0 when the rated torque is
         unknown: the torque is then reported in per mille (:attr:`torque_unit`)."""
-        return 1.0 if self.rated_torque_nm is None else self.rated_torque_nm / 1000.0
+        return 1.0 if self.rated_torque_nm is None else self.rated_torque_nm / PERMILLE
 
     @property
     def torque_unit(self) -> str:

@@ -26,7 +26,6 @@ import numpy as np
 
 from plant_sim.axis import AxisConfig
 from plant_sim.drive import DriveConfig, SimulatedDrive
-from plant_sim.drive import TimeMode as DriveTimeMode
 from plant_sim.simulate import References
 from plant_sim.trace import Trace
 from virtual_bus import BusConfig, FaultConfig, FaultInjectingBus, Interface, open_bus
@@ -103,11 +102,7 @@ def simulated_axis(
         pacer = LockstepPacer(cycle_s, lockstep_wait_s)
     else:
         pacer = RealTimePacer(cycle_s)
-    drive_config = drive_config or DriveConfig(
-        time_mode=DriveTimeMode.LOCKSTEP
-        if time_mode is TimeMode.LOCKSTEP
-        else DriveTimeMode.REAL_TIME
-    )
+    drive_config = drive_config or DriveConfig(time_mode=time_mode)
     with contextlib.ExitStack() as stack:
         raw_bridge_bus = open_bus(bus_config)
         stack.callback(raw_bridge_bus.shutdown)

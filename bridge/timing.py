@@ -24,8 +24,9 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from enum import Enum
 from typing import Protocol
+
+from virtual_bus.contract import TimeMode as TimeMode
 
 from .errors import BridgeConfigError
 
@@ -41,13 +42,6 @@ DEFAULT_LATE_FRACTION = 0.2
 #: Real time: the last part of the wait for a SYNC instant is spent polling the clock instead
 #: of sleeping (a blocking wait wakes 50-100 µs late on Linux), s; at most 20 % of the cycle.
 DEFAULT_SPIN_S = 0.0002
-
-
-class TimeMode(Enum):
-    """How the loop's time advances."""
-
-    LOCKSTEP = "lockstep"
-    REAL_TIME = "realtime"
 
 
 def _positive(name: str, value: float, high: float = math.inf) -> float:

@@ -51,6 +51,18 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 
+# controlword bits and the statusword bits outside the state pattern: the contract's
+from virtual_bus.contract import CW_ENABLE_OPERATION as CW_ENABLE_OPERATION
+from virtual_bus.contract import CW_ENABLE_VOLTAGE as CW_ENABLE_VOLTAGE
+from virtual_bus.contract import CW_FAULT_RESET as CW_FAULT_RESET
+from virtual_bus.contract import CW_QUICK_STOP as CW_QUICK_STOP
+from virtual_bus.contract import CW_SWITCH_ON as CW_SWITCH_ON
+from virtual_bus.contract import SW_FOLLOWS_COMMAND as SW_FOLLOWS_COMMAND
+from virtual_bus.contract import SW_INTERNAL_LIMIT as SW_INTERNAL_LIMIT
+from virtual_bus.contract import SW_REMOTE as SW_REMOTE
+from virtual_bus.contract import SW_VOLTAGE_ENABLED as SW_VOLTAGE_ENABLED
+from virtual_bus.contract import SW_WARNING as SW_WARNING
+
 
 class State402(Enum):
     """States of the CiA 402 power drive system finite state automaton."""
@@ -78,20 +90,6 @@ STATUS_PATTERNS: dict[State402, tuple[int, int]] = {
     S.FAULT_REACTION_ACTIVE: (0x004F, 0x000F),  # x0xx 1111
     S.FAULT: (0x004F, 0x0008),  # x0xx 1000
 }
-
-# statusword bits outside the state pattern
-SW_VOLTAGE_ENABLED = 1 << 4
-SW_WARNING = 1 << 7
-SW_REMOTE = 1 << 9
-SW_INTERNAL_LIMIT = 1 << 11
-SW_FOLLOWS_COMMAND = 1 << 12  # cyclic synchronous modes: drive follows the command value
-
-# controlword bits
-CW_SWITCH_ON = 1 << 0
-CW_ENABLE_VOLTAGE = 1 << 1
-CW_QUICK_STOP = 1 << 2  # active low
-CW_ENABLE_OPERATION = 1 << 3
-CW_FAULT_RESET = 1 << 7
 
 
 class Command(Enum):

@@ -4,18 +4,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import Enum
 from pathlib import Path
+
+from virtual_bus.contract import TimeMode
 
 from .errors import DriveConfigError
 from .od import DEFAULT_EDS_PATH
 
-
-class TimeMode(Enum):
-    """How the drive's time relates to the wall clock (the physics steps per SYNC in both)."""
-
-    LOCKSTEP = "lockstep"  # SYNC is the only clock; heartbeat on simulated time
-    REAL_TIME = "real time"  # SYNC comes from a wall clock elsewhere; heartbeat on the wall clock
+__all__ = ["DriveConfig", "TimeMode"]
 
 
 @dataclass(frozen=True)

@@ -39,19 +39,24 @@ import canopen
 
 from plant_sim.axis import AxisConfig
 from plant_sim.model import AxisPlant
+from virtual_bus.contract import NMT_COB_ID, NMT_LENGTH, SDO_LENGTH, SdoAbort
+from virtual_bus.frame_guard import FrameFault, FrameGuard
 
 from . import od as O
 from .cia402 import State402
 from .config import DriveConfig, TimeMode
-from .errors import (
-    ABORT_READ_ONLY,
-    ABORT_VALUE_RANGE,
-    DriveConfigError,
-    DriveInputError,
-    DriveSdoAbort,
-    DriveStateError,
+from .errors import DriveConfigError, DriveInputError, DriveSdoAbort, DriveStateError
+from .node import (
+    DriveNmt,
+    DriveNode,
+    FrameCallback,
+    GuardedListener,
+    NmtCommand,
+    NmtState,
+    SimulatedHeartbeat,
+    WallClockHeartbeat,
+    gated,
 )
-from .node import DriveNmt, DriveNode, NmtCommand, NmtState, SimulatedHeartbeat, WallClockHeartbeat
 from .pdo import PdoEngine
 from .protection import EMCY_PDO_LENGTH, EMCY_SYNC_LENGTH, ErrorList, emcy_data_int32
 from .servo import ServoAxis
@@ -124,7 +129,13 @@ class SimulatedDrive:
         self._nmt = DriveNmt(
             node_id, lock=self._lock, on_reset=self._nmt_reset, on_state=self._nmt_state
         )
-        self._node = DriveNode(node_id, od, nmt=self._nmt, lock=self._lock)
+        #: every received frame passes it before a handler (docs/drive.md): on a Network the
+        #: drive owns at the listener, on a shared one at each of the drive's subscriptions
+        self.guard = FrameGuard(f"drive {node_id}", self._classify)
+        self._gate = None if self._own_network else self.guard.admit
+        if self._own_network:
+            self._network.listeners[:] = [GuardedListener(self._network, self.guard.check)]
+        self._node = DriveNode(node_id, od, nmt=self._nmt, lock=self._lock, gate=self._gate)
         self._node.add_read_callback(self._table.sdo_read)
         self._node.add_write_callback(self._table.sdo_write)
         if self.config.time_mode is TimeMode.LOCKSTEP:
@@ -137,9 +148,14 @@ class SimulatedDrive:
             self._table,
             send=self._send,
             subscriber=self._network,
-            on_frame=self._guarded(self._on_rpdo_frame),
+            on_frame=self._gated(self._guarded(self._on_rpdo_frame)),
         )
-        self._on_sync_frame_cb = self._guarded(self._on_sync_frame)
+        self._on_sync_frame_cb = self._gated(self._guarded(self._on_sync_frame))
+        for fault in FrameFault:
+            self._table.on(
+                (O.FRAME_COUNTERS, fault.value),
+                read=lambda f=fault: self.guard.count(f) & 0xFFFFFFFF,
+            )
         self._table.on(O.SYNC_CYCLES, read=lambda: self._sync_count & 0xFFFFFFFF)
         self._table.on(
             O.COB_ID_SYNC, validate=self._check_sync_cob_id, changed=self._sync_cob_id_changed
@@ -162,6 +178,27 @@ class SimulatedDrive:
                 self._callback_errors.append(exc)
 
         return run
+
+    def _gated(self, callback: FrameCallback) -> FrameCallback:
+        return callback if self._gate is None else gated(self._gate, callback)
+
+    def _classify(self, cob_id: int, length: int) -> FrameFault | None:
+        """The frame guard's rules (CiA 301 lengths, table 46 services per NMT state)."""
+        nmt = self._nmt.state
+        if cob_id == NMT_COB_ID:
+            return None if length == NMT_LENGTH else FrameFault.BAD_LENGTH
+        if cob_id == self._sync_cob_id:
+            return None  # a SYNC with data > 1 byte: EMCY 8240 in _on_sync_frame, counted there
+        if cob_id == self._node.sdo.rx_cobid:
+            if length != SDO_LENGTH:
+                return FrameFault.BAD_LENGTH
+            if nmt in (NmtState.STOPPED, NmtState.INITIALISING):
+                return FrameFault.NOT_IN_STATE
+            return None
+        if cob_id in self._pdo.rpdo_cob_ids():
+            # the length against the mapping is checked at the SYNC (EMCY 8210, counted then)
+            return None if nmt is NmtState.OPERATIONAL else FrameFault.NOT_IN_STATE
+        return FrameFault.UNKNOWN_COB_ID
 
     # ------------------------------------------------------------------------------------------
     # lifecycle
@@ -357,7 +394,7 @@ class SimulatedDrive:
         with self._lock:
             key = (index, subindex)
             if key not in self._table or not self._table.variable(key).writable:
-                raise DriveSdoAbort(ABORT_READ_ONLY, "object is not writable", key=key)
+                raise DriveSdoAbort(SdoAbort.READ_ONLY, "object is not writable", key=key)
             self._table.write(key, value)
 
     # ------------------------------------------------------------------------------------------
@@ -373,6 +410,8 @@ class SimulatedDrive:
                 result = self._pdo.latch(before_apply=self._rpdo_arrived)
                 if result.short_frames:
                     self._errors.set(EMCY_PDO_LENGTH, emcy_data_int32(result.short_frames[0]))
+                    for can_id in result.short_frames:
+                        self.guard.refuse(FrameFault.BAD_LENGTH, can_id, -1)
             self._servo.supervise(self._rpdo_seen)
             if operational:
                 self._pdo.transmit()
@@ -390,14 +429,14 @@ class SimulatedDrive:
     def _check_sync_cob_id(self, value: int) -> None:
         if value & 0x7FFFF800:
             raise DriveSdoAbort(
-                ABORT_VALUE_RANGE,
+                SdoAbort.VALUE_RANGE,
                 f"COB-ID SYNC 0x{value:08X}: the drive only consumes SYNC (bit 30 = 0) on an "
                 "11-bit CAN id (bits 11..29 = 0)",
                 key=O.COB_ID_SYNC,
             )
         if value & 0x7FF == 0:
             raise DriveSdoAbort(
-                ABORT_VALUE_RANGE, "COB-ID SYNC: CAN id 0 is the NMT service", key=O.COB_ID_SYNC
+                SdoAbort.VALUE_RANGE, "COB-ID SYNC: CAN id 0 is the NMT service", key=O.COB_ID_SYNC
             )
 
     def _send(self, can_id: int, data: bytes) -> None:
@@ -427,7 +466,7 @@ class SimulatedDrive:
     def _on_sync_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._lock:
             if len(data) > 1:  # CiA 301: SYNC carries no data or the 1-byte counter
-                logger.warning("SYNC with %d data bytes ignored (allowed 0 or 1)", len(data))
+                self.guard.refuse(FrameFault.BAD_LENGTH, can_id, len(data))
                 self._errors.set(EMCY_SYNC_LENGTH, emcy_data_int32(len(data)))
                 return
             self._errors.clear(EMCY_SYNC_LENGTH)

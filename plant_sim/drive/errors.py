@@ -1,6 +1,6 @@
 """Exceptions of :mod:`plant_sim.drive`, all below :class:`plant_sim.errors.PlantSimError`.
 
-SDO abort codes (CiA 301, table "SDO abort codes") are constants here; a refused SDO write
+SDO abort codes are :class:`virtual_bus.contract.SdoAbort`; a refused SDO write
 raises :class:`DriveSdoAbort`, which the canopen SDO server turns into an abort frame with
 ``code`` (it is also a :class:`canopen.SdoAbortedError`).
 """
@@ -10,23 +10,6 @@ from __future__ import annotations
 from canopen.sdo import SdoAbortedError
 
 from plant_sim.errors import PlantSimError
-
-#: Attempt to write a read only object.
-ABORT_READ_ONLY = 0x06010002
-#: Object does not exist in the object dictionary.
-ABORT_NO_OBJECT = 0x06020000
-#: Object cannot be mapped to the PDO.
-ABORT_NOT_MAPPABLE = 0x06040041
-#: The number and length of the objects to be mapped would exceed the PDO length (64 bits).
-ABORT_PDO_LENGTH = 0x06040042
-#: Invalid value for parameter (download only).
-ABORT_VALUE_RANGE = 0x06090030
-#: Value of parameter written too high.
-ABORT_VALUE_HIGH = 0x06090031
-#: Value of parameter written too low.
-ABORT_VALUE_LOW = 0x06090032
-#: Data cannot be transferred or stored because of the present device state.
-ABORT_DEVICE_STATE = 0x08000022
 
 
 class DriveError(PlantSimError):

@@ -8,7 +8,8 @@ What canopen's LocalNode / NmtSlave lack and this module adds:
 - the reset hooks (application / communication parameters back to their defaults);
 - a heartbeat clocked by the simulated time (lockstep: one position cycle per SYNC), since
   NmtSlave's heartbeat always runs on the wall clock in a python-can thread;
-- no SDO service in Stopped (CiA 301 table 46).
+- no SDO service in Stopped (CiA 301 table 46), and an SDO server that answers as CiA 301
+  says (:class:`virtual_bus.sdo_server.CheckedSdoServer`).
 """
 
 from __future__ import annotations
@@ -16,38 +17,17 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
-from enum import IntEnum
 from typing import Protocol
 
 import can
 import canopen.network
 from canopen import LocalNode
 from canopen.objectdictionary import ObjectDictionary
-from canopen.sdo import SdoServer
+
+from virtual_bus.contract import HEARTBEAT_BASE, NMT_COB_ID, NmtCommand, NmtState
+from virtual_bus.sdo_server import CheckedSdoServer
 
 logger = logging.getLogger(__name__)
-
-NMT_COB_ID = 0x000
-HEARTBEAT_BASE = 0x700
-
-
-class NmtState(IntEnum):
-    """NMT states with their heartbeat codes (CiA 301 table 48)."""
-
-    INITIALISING = 0  # boot-up
-    STOPPED = 4
-    OPERATIONAL = 5
-    PRE_OPERATIONAL = 127
-
-
-class NmtCommand(IntEnum):
-    """NMT command specifiers (CiA 301 7.2.8.3.1)."""
-
-    START = 0x01
-    STOP = 0x02
-    ENTER_PRE_OPERATIONAL = 0x80
-    RESET_NODE = 0x81
-    RESET_COMMUNICATION = 0x82
 
 
 _TARGET = {
@@ -198,8 +178,9 @@ class DriveNmt:
         self.execute(command)
 
 
-class _GatedSdoServer(SdoServer):
-    """canopen's SDO server, silent while ``blocked()`` (NMT Stopped), serialised by ``lock``."""
+class _GatedSdoServer(CheckedSdoServer):
+    """The CiA 301 SDO server, silent while ``blocked()`` (NMT Stopped), serialised by
+    ``lock``."""
 
     def __init__(
         self,
@@ -208,7 +189,7 @@ class _GatedSdoServer(SdoServer):
         lock: threading.RLock,
         blocked: Callable[[], bool],
     ) -> None:
-        super().__init__(0x600 + node.id, 0x580 + node.id, node)
+        super().__init__(node)
         self._lock = lock
         self._blocked = blocked
 
@@ -233,10 +214,66 @@ class DriveNode(LocalNode):
         *,
         nmt: DriveNmt,
         lock: threading.RLock,
+        gate: Callable[[int, int], bool] | None = None,
     ) -> None:
+        self._gate = gate
+        self._gated_subscriptions: list[tuple[int, FrameCallback, FrameCallback]] = []
         super().__init__(node_id, od)
         # LocalNode registered its NmtSlave's heartbeat writer for 1017h; the drive handles
         # 1017h itself (time-mode dependent heartbeat), so drop it with the NmtSlave.
         self._write_callbacks.remove(self.nmt.on_write)
         self.nmt = nmt  # type: ignore[assignment]
         self.sdo = _GatedSdoServer(self, lock=lock, blocked=lambda: nmt.state is NmtState.STOPPED)
+
+    def associate_network(self, network: canopen.network.Network) -> None:
+        """As LocalNode's, but SDO and NMT frames pass ``gate(cob_id, length)`` first (the
+        drive's frame guard when it shares a Network it does not own)."""
+        super().associate_network(network)
+        if self._gate is None:
+            return
+        plain = ((self.sdo.rx_cobid, self.sdo.on_request), (NMT_COB_ID, self.nmt.on_command))
+        for cob_id, callback in plain:
+            wrapped = gated(self._gate, callback)
+            network.unsubscribe(cob_id, callback)
+            network.subscribe(cob_id, wrapped)
+            self._gated_subscriptions.append((cob_id, callback, wrapped))
+
+    def remove_network(self) -> None:
+        if self.has_network():  # LocalNode unsubscribes the plain callbacks: put them back
+            for cob_id, callback, wrapped in self._gated_subscriptions:
+                self.network.unsubscribe(cob_id, wrapped)
+                self.network.subscribe(cob_id, callback)
+        self._gated_subscriptions.clear()
+        super().remove_network()
+
+
+FrameCallback = Callable[[int, bytearray, float], None]
+
+
+def gated(gate: Callable[[int, int], bool], callback: FrameCallback) -> FrameCallback:
+    """``callback`` called only for frames ``gate(cob_id, length)`` admits."""
+
+    def run(can_id: int, data: bytearray, timestamp: float) -> None:
+        if gate(can_id, len(data)):
+            callback(can_id, data, timestamp)
+
+    return run
+
+
+class GuardedListener(can.Listener):
+    """Replaces canopen's MessageListener on a Network the drive owns: every frame passes the
+    frame guard (RTR, 29-bit ids, error frames, COB-ID, length, NMT state) first."""
+
+    def __init__(self, network: canopen.network.Network, check: Callable[[can.Message], bool]):
+        self.network = network
+        self._check = check
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if self._check(msg):
+            try:
+                self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+            except Exception:  # canopen's listener does the same: never kill the receive thread
+                logger.exception("handler of frame 0x%03X failed", msg.arbitration_id)
+
+    def stop(self) -> None:
+        pass

@@ -33,8 +33,21 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo import SdoAbortedError
 
 from plant_sim.axis import AxisKind
+from virtual_bus.contract import INT16_MAX as INT16_MAX
+from virtual_bus.contract import INT16_MIN as INT16_MIN
+from virtual_bus.contract import INT32_MAX as INT32_MAX
+from virtual_bus.contract import INT32_MIN as INT32_MIN
+from virtual_bus.contract import (
+    LOAD_INCREMENTS_PER_M,
+    LOAD_INCREMENTS_PER_RAD,
+    MNM_PER_NM,
+    MOTOR_INCREMENTS_PER_REV,
+    PERMILLE,
+    SdoAbort,
+)
+from virtual_bus.contract import MODE_CSV as MODE_CSV
 
-from .errors import ABORT_VALUE_HIGH, ABORT_VALUE_LOW, DriveEdsError, DriveSdoAbort
+from .errors import DriveEdsError, DriveSdoAbort
 
 ObjectKey = tuple[int, int]
 
@@ -52,6 +65,8 @@ ENCODER_TOLERANCE: ObjectKey = (0x2101, 0)
 SETPOINT_TIMEOUT: ObjectKey = (0x2102, 0)
 SYNC_CYCLES: ObjectKey = (0x2103, 0)
 LOAD_MINUS_MOTOR: ObjectKey = (0x2104, 0)
+#: 2105h:01..07 refused frames by kind (virtual_bus.frame_guard.FrameFault values)
+FRAME_COUNTERS = 0x2105
 # --- CiA 402 --------------------------------------------------------------------------------
 ABORT_CONNECTION_OPTION: ObjectKey = (0x6007, 0)
 ERROR_CODE: ObjectKey = (0x603F, 0)
@@ -74,18 +89,14 @@ LOAD_POSITION_ACTUAL: ObjectKey = (0x60E4, 1)
 TARGET_VELOCITY: ObjectKey = (0x60FF, 0)
 SUPPORTED_DRIVE_MODES: ObjectKey = (0x6502, 0)
 
-#: 6060h value of cyclic synchronous velocity mode, the only mode of this drive.
-MODE_CSV = 9
-#: Motor encoder increments per motor revolution (6064h, 606Ch, 60FFh).
-INCREMENTS_PER_REV = 2**20
+#: Motor encoder increments per motor revolution (6064h, 606Ch, 60FFh); MODE_CSV (6060h = 9)
+#: is the only mode of this drive.
+INCREMENTS_PER_REV = MOTOR_INCREMENTS_PER_REV
 INCREMENTS_PER_RAD = INCREMENTS_PER_REV / (2.0 * math.pi)
 RAD_PER_INCREMENT = (2.0 * math.pi) / INCREMENTS_PER_REV
 #: The paper's tolerance between motor and direct measuring system (section II.B).
 PAPER_ENCODER_TOLERANCE_M = 0.5e-3
 PAPER_ENCODER_TOLERANCE_RAD = math.radians(0.5)
-
-INT16_MIN, INT16_MAX = -(2**15), 2**15 - 1
-INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 
 
 # --------------------------------------------------------------------------------------------
@@ -102,7 +113,7 @@ def saturate(value: int, low: int, high: int) -> int:
 
 def load_units_per_unit(kind: AxisKind) -> float:
     """Integer units of 60E4h:01 / 2101h / 2104h per load unit: nm per m or µrad per rad."""
-    return 1e9 if kind is AxisKind.LINEAR else 1e6
+    return LOAD_INCREMENTS_PER_M if kind is AxisKind.LINEAR else LOAD_INCREMENTS_PER_RAD
 
 
 def motor_position_increments(theta_rad: float) -> int:
@@ -132,12 +143,14 @@ def load_difference_units(difference: float, kind: AxisKind) -> int:
 
 def torque_permille(torque_nm: float, rated_torque_mnm: int) -> int:
     """6077h from the motor torque (N·m): ‰ of the rated torque 6076h (mN·m)."""
-    return saturate(round(torque_nm * 1e6 / rated_torque_mnm), INT16_MIN, INT16_MAX)
+    return saturate(
+        round(torque_nm * MNM_PER_NM * PERMILLE / rated_torque_mnm), INT16_MIN, INT16_MAX
+    )
 
 
 def torque_limit_nm(max_torque_permille: int, rated_torque_mnm: int) -> float:
     """The torque limit (N·m) of 6072h (‰ of 6076h)."""
-    return max_torque_permille * rated_torque_mnm / 1e6
+    return max_torque_permille * rated_torque_mnm / (MNM_PER_NM * PERMILLE)
 
 
 def interpolation_period(cycle_s: float) -> tuple[int, int]:
@@ -182,6 +195,8 @@ def _known_objects() -> dict[ObjectKey, ObjectSpec]:
         SETPOINT_TIMEOUT: (u8, rw),
         SYNC_CYCLES: (u32, ro),
         LOAD_MINUS_MOTOR: (i32, ro),
+        (FRAME_COUNTERS, 0): (u8, const),
+        **{(FRAME_COUNTERS, s): (u32, ro) for s in range(1, 8)},
         ABORT_CONNECTION_OPTION: (i16, rw),
         ERROR_CODE: (u16, ro),
         CONTROLWORD: (u16, rw),
@@ -372,11 +387,11 @@ class ObjectTable:
         var = self._vars[key]
         if var.min is not None and value < var.min:
             raise DriveSdoAbort(
-                ABORT_VALUE_LOW, f"{value} is below the minimum {var.min} of {var.name}", key=key
+                SdoAbort.TOO_LOW, f"{value} is below the minimum {var.min} of {var.name}", key=key
             )
         if var.max is not None and value > var.max:
             raise DriveSdoAbort(
-                ABORT_VALUE_HIGH, f"{value} is above the maximum {var.max} of {var.name}", key=key
+                SdoAbort.TOO_HIGH, f"{value} is above the maximum {var.max} of {var.name}", key=key
             )
 
     def write(self, key: ObjectKey, value: int) -> None:

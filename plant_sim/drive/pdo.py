@@ -37,13 +37,13 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Protocol
 
-from .errors import (
-    ABORT_NO_OBJECT,
-    ABORT_NOT_MAPPABLE,
-    ABORT_PDO_LENGTH,
-    ABORT_VALUE_RANGE,
-    DriveSdoAbort,
-)
+from virtual_bus.contract import CAN_ID_MASK as CAN_ID_MASK
+from virtual_bus.contract import COB_ID_EXTENDED as COB_ID_EXTENDED
+from virtual_bus.contract import COB_ID_INVALID as COB_ID_INVALID
+from virtual_bus.contract import COB_ID_NO_RTR as COB_ID_NO_RTR
+from virtual_bus.contract import SdoAbort, split_mapping_entry
+
+from .errors import DriveSdoAbort
 from .od import (
     PDO_CHANNELS,
     PDO_MAP_ENTRIES,
@@ -57,10 +57,6 @@ from .od import (
 
 logger = logging.getLogger(__name__)
 
-COB_ID_INVALID = 1 << 31
-COB_ID_NO_RTR = 1 << 30
-COB_ID_EXTENDED = 1 << 29
-CAN_ID_MASK = 0x7FF
 MAX_PDO_BITS = 64
 
 FrameCallback = Callable[[int, bytearray, float], None]
@@ -100,7 +96,8 @@ class MappedObject:
 
     @staticmethod
     def decode(entry: int) -> MappedObject:
-        return MappedObject((entry >> 16, (entry >> 8) & 0xFF), entry & 0xFF)
+        index, subindex, bits = split_mapping_entry(entry)
+        return MappedObject((index, subindex), bits)
 
 
 @dataclass
@@ -209,7 +206,7 @@ class PdoEngine:
                 return
             if new & COB_ID_EXTENDED or new & 0x1FFFF800:
                 raise self._abort(
-                    ABORT_VALUE_RANGE,
+                    SdoAbort.VALUE_RANGE,
                     ch,
                     key,
                     f"COB-ID 0x{new:08X}: only 11-bit CAN ids (bits 11..29 = 0) are supported",
@@ -219,7 +216,7 @@ class PdoEngine:
             can_id = new & CAN_ID_MASK
             if not old & COB_ID_INVALID and can_id != old & CAN_ID_MASK:
                 raise self._abort(
-                    ABORT_VALUE_RANGE,
+                    SdoAbort.VALUE_RANGE,
                     ch,
                     key,
                     f"COB-ID 0x{new:08X}: the CAN id of a valid PDO cannot change; "
@@ -227,13 +224,13 @@ class PdoEngine:
                 )
             if restricted_cob_id(can_id):
                 raise self._abort(
-                    ABORT_VALUE_RANGE, ch, key, f"CAN id 0x{can_id:03X} is a restricted COB-ID"
+                    SdoAbort.VALUE_RANGE, ch, key, f"CAN id 0x{can_id:03X} is a restricted COB-ID"
                 )
             if ch.kind is PdoKind.RECEIVE:
                 for other in self._rx:
                     if other is not ch and self.is_valid(other) and self.can_id(other) == can_id:
                         raise self._abort(
-                            ABORT_VALUE_RANGE,
+                            SdoAbort.VALUE_RANGE,
                             ch,
                             key,
                             f"CAN id 0x{can_id:03X} is already used by {other.name}",
@@ -249,7 +246,7 @@ class PdoEngine:
             ok = new <= 240 or (ch.kind is PdoKind.RECEIVE and new in (254, 255))
             if not ok:
                 raise self._abort(
-                    ABORT_VALUE_RANGE,
+                    SdoAbort.VALUE_RANGE,
                     ch,
                     key,
                     f"transmission type {new} is not supported; allowed {allowed}",
@@ -263,7 +260,7 @@ class PdoEngine:
         where = f"mapping entry {sub} = 0x{entry:08X}"
         if obj.key not in self._table:
             raise self._abort(
-                ABORT_NO_OBJECT,
+                SdoAbort.NO_OBJECT,
                 ch,
                 key,
                 f"{where}: {obj.key[0]:04X}h:{obj.key[1]:02X} does not exist",
@@ -272,10 +269,12 @@ class PdoEngine:
         usable = var.writable if ch.kind is PdoKind.RECEIVE else var.readable
         if not var.pdo_mappable or not usable:
             what = "written by an RPDO" if ch.kind is PdoKind.RECEIVE else "sent by a TPDO"
-            raise self._abort(ABORT_NOT_MAPPABLE, ch, key, f"{where}: {var.name} cannot be {what}")
+            raise self._abort(
+                SdoAbort.NOT_MAPPABLE, ch, key, f"{where}: {var.name} cannot be {what}"
+            )
         if obj.bits != len(var):
             raise self._abort(
-                ABORT_NOT_MAPPABLE,
+                SdoAbort.NOT_MAPPABLE,
                 ch,
                 key,
                 f"{where}: {var.name} is {len(var)} bits, only whole objects can be mapped",
@@ -290,7 +289,7 @@ class PdoEngine:
                 return
             if self.is_valid(ch) or self._table.value((ch.map, 0)) != 0:
                 raise self._abort(
-                    ABORT_VALUE_RANGE,
+                    SdoAbort.VALUE_RANGE,
                     ch,
                     key,
                     f"mapping can change only while the PDO is invalid ({ch.comm:04X}h:01 bit 31"
@@ -309,7 +308,7 @@ class PdoEngine:
                 return
             if self.is_valid(ch):
                 raise self._abort(
-                    ABORT_VALUE_RANGE,
+                    SdoAbort.VALUE_RANGE,
                     ch,
                     key,
                     f"the number of mapped objects can change only while the PDO is invalid "
@@ -319,11 +318,13 @@ class PdoEngine:
             for sub in range(1, new + 1):
                 entry = self._table.value((ch.map, sub))
                 if entry == 0:
-                    raise self._abort(ABORT_NOT_MAPPABLE, ch, key, f"mapping entry {sub} is empty")
+                    raise self._abort(
+                        SdoAbort.NOT_MAPPABLE, ch, key, f"mapping entry {sub} is empty"
+                    )
                 total += self._check_mappable(ch, key, entry, sub)
             if total > MAX_PDO_BITS:
                 raise self._abort(
-                    ABORT_PDO_LENGTH,
+                    SdoAbort.PDO_LENGTH,
                     ch,
                     key,
                     f"{new} mapped objects are {total} bits; a PDO holds at most {MAX_PDO_BITS}",
@@ -382,6 +383,10 @@ class PdoEngine:
             if can_id not in self._subscribed:
                 self._subscriber.subscribe(can_id, self._on_frame)
                 self._subscribed[can_id] = ch
+
+    def rpdo_cob_ids(self) -> frozenset[int]:
+        """CAN ids of the valid RPDOs (subscribed)."""
+        return frozenset(self._subscribed)
 
     def unsubscribe_all(self) -> None:
         for can_id in list(self._subscribed):

@@ -28,6 +28,7 @@ import math
 
 from plant_sim.axis import AxisConfig, AxisKind
 from plant_sim.model import AxisPlant
+from virtual_bus.contract import SdoAbort
 
 from . import od as O
 from .cia402 import (
@@ -44,7 +45,7 @@ from .cia402 import (
     status_bits,
 )
 from .config import DriveConfig
-from .errors import ABORT_VALUE_RANGE, DriveConfigError, DriveSdoAbort
+from .errors import DriveConfigError, DriveSdoAbort
 from .protection import (
     EMCY_PDO_LENGTH,
     EMCY_RPDO_TIMEOUT,
@@ -152,7 +153,7 @@ class ServoAxis:
     def _check_mode(self, value: int) -> None:
         if value != O.MODE_CSV:
             raise DriveSdoAbort(
-                ABORT_VALUE_RANGE,
+                SdoAbort.VALUE_RANGE,
                 f"mode of operation {value} not supported; allowed {O.MODE_CSV} "
                 "(cyclic synchronous velocity)",
                 key=O.MODES_OF_OPERATION,
@@ -161,7 +162,7 @@ class ServoAxis:
     def _check_quick_stop_option(self, value: int) -> None:
         if value not in QUICK_STOP_CODES:
             raise DriveSdoAbort(
-                ABORT_VALUE_RANGE,
+                SdoAbort.VALUE_RANGE,
                 f"quick stop option code {value} not supported; allowed {QUICK_STOP_CODES}",
                 key=O.QUICK_STOP_OPTION,
             )
