@@ -18,6 +18,8 @@ import logging
 from dataclasses import dataclass, field
 from enum import IntEnum
 
+from virtual_bus.contract import DataType
+
 from .errors import DriveSetupError
 from .layout import CycleLayout, MappedObject, RxFrame, Signal, struct_code
 from .profile import OBJECT_TYPES, DriveProfile, LoadSource, ModeChoice, ObjectKey, format_key
@@ -82,6 +84,17 @@ class DriveFacts:
         return (self.vendor_id, self.product_code) == CONTRACT_IDENTITY
 
 
+#: CiA 301 data type of an integer object by (bits, signed).
+_DATA_TYPES = {
+    (8, False): DataType.UNSIGNED8,
+    (8, True): DataType.INTEGER8,
+    (16, False): DataType.UNSIGNED16,
+    (16, True): DataType.INTEGER16,
+    (32, False): DataType.UNSIGNED32,
+    (32, True): DataType.INTEGER32,
+}
+
+
 @dataclass(frozen=True)
 class Item:
     """An object to map in a drive TPDO and the signal it carries."""
@@ -98,6 +111,12 @@ class Item:
     def code(self) -> str:
         return struct_code(*OBJECT_TYPES[self.type_name])
 
+    @property
+    def data_type(self) -> DataType:
+        """The CiA 301 data type of the object (for the mapping entry)."""
+        bits, signed = OBJECT_TYPES[self.type_name]
+        return _DATA_TYPES[(bits, signed)]
+
 
 @dataclass(frozen=True)
 class PdoPlan:
@@ -109,7 +128,7 @@ class PdoPlan:
 
     @property
     def mapping(self) -> tuple[MappedObject, ...]:
-        return tuple(MappedObject(i.key[0], i.key[1], i.bits) for i in self.items)
+        return tuple(MappedObject(i.key[0], i.key[1], i.data_type) for i in self.items)
 
     @property
     def comm_index(self) -> int:

@@ -72,6 +72,11 @@ class PdoSpec:
         """Codec of the payload (the contract's PDO entry codec)."""
         return pdo_struct([m.data_type for m in self.mapping])
 
+    @property
+    def fmt(self) -> str:
+        """The struct format of the payload (what :class:`RxFrame` takes)."""
+        return self.struct.format
+
     def cob_id(self, drive_id: int) -> int:
         return (tpdo_cob_id if self.transmit else rpdo_cob_id)(self.number, drive_id)
 

@@ -293,6 +293,8 @@ class Bridge:
     # --- frames -----------------------------------------------------------------------------
     def _classify(self, cob_id: int, length: int) -> FrameFault | None:
         need = self._lengths.get(cob_id)
+        if need is None and 0x581 <= cob_id <= 0x5FF:
+            need = SDO_LENGTH  # an SDO answer to the bridge's client (drive, encoder node)
         if need is None:
             # the bridge produces SYNC (1005h bit 30): a SYNC it receives came from another node
             if cob_id == SYNC_COB_ID:

@@ -29,6 +29,9 @@ DEVICE_STATE = 0x0800_0022
 #: Codes the device's own rules may answer a well-formed write in range with.
 APPLICATION_CODES = frozenset(
     {VALUE_RANGE, TOO_HIGH, TOO_LOW, DEVICE_STATE, 0x0604_0041, 0x0604_0042, 0x0602_0000}
+    # 1010h/1011h: a wrong signature, or no store (CiA 301: "data cannot be transferred or
+    # stored"), and a store file that cannot be written ("hardware error")
+    | {0x0800_0020, 0x0606_0000}
 )
 #: Marker: success or one of APPLICATION_CODES.
 APPLICATION = -1

@@ -13,7 +13,13 @@ from pathlib import Path
 from virtual_bus import cli
 from virtual_bus.progress import Progress
 
-from .common import PAPER_AXIS, add_realtime_options, realtime_options, simulated_axis_file
+from .common import (
+    PAPER_AXIS,
+    add_realtime_options,
+    cpu_number,
+    realtime_options,
+    simulated_axis_file,
+)
 
 NAME = "bench"
 HELP = "lockstep cycles per second and real-time latency"
@@ -49,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--drive-cpu",
-        type=cli.bounded_int(0, 4095),
+        type=cpu_number,
         metavar="N",
         help="pin the drive process to CPU N (default with --cpu: another CPU)",
     )
@@ -62,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
     if args.skip_lockstep and args.skip_realtime:
         raise cli.UsageError("--skip-lockstep and --skip-realtime together leave nothing to run")
     axis = simulated_axis_file(args.axis)  # refused before anything is said or run
+    rt = realtime_options(args)
     progress = Progress(f"bridge {NAME}", quiet=args.quiet)
     stages = []
     if not args.skip_lockstep:
@@ -76,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         lockstep=not args.skip_lockstep,
         json_path=args.json,
         rate_hz=args.rate_hz,
-        rt=realtime_options(args),
+        rt=rt,
         drive=args.drive,
         drive_cpu=args.drive_cpu,
     )
