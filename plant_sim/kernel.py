@@ -341,6 +341,16 @@ def speed_cycle(p: np.ndarray, st: np.ndarray, omega_set: float, f_dist: float) 
     _push_history(p, st)
 
 
+@_inline
+def _advance(
+    p: np.ndarray, st: np.ndarray, omega_set: float, disturbance_nm: float, torque_ff_nm: float
+) -> None:
+    st[S_TAU_FF] = torque_ff_nm
+    f_dist = p[P_KR] * disturbance_nm
+    for _ in range(int(p[P_NSC])):
+        speed_cycle(p, st, omega_set, f_dist)
+
+
 @_njit
 def advance(
     p: np.ndarray,
@@ -353,10 +363,7 @@ def advance(
     (rad/s at the motor), a constant external disturbance (N·m reflected to the motor,
     positive pushes towards +x) and a constant torque feed-forward (N·m, added to the
     speed controller's output before the torque limit)."""
-    st[S_TAU_FF] = torque_ff_nm
-    f_dist = p[P_KR] * disturbance_nm
-    for _ in range(int(p[P_NSC])):
-        speed_cycle(p, st, omega_set, f_dist)
+    _advance(p, st, omega_set, disturbance_nm, torque_ff_nm)
 
 
 @_njit
@@ -431,7 +438,7 @@ def run_closed_loop(
         out[k, O_LAM] = lam
         out[k, O_WS] = w_s
         out[k, O_WC] = w_c
-        advance(p, st, w_apply, dist_nm[k], ff_apply)
+        _advance(p, st, w_apply, dist_nm[k], ff_apply)  # inlined: no call per cycle
 
 
 @_njit
