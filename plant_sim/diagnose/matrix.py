@@ -151,6 +151,7 @@ SHORT = {
     "periodic_disturbance": "per",
     "torque_saturation": "sat",
     "time_delay": "dly",
+    "sensor_time_offset": "sto",
 }
 
 
@@ -160,7 +161,7 @@ def confusion_markdown(results: Sequence[CaseResult]) -> str:
     for r in results:
         counts[(r.truth, r.first if r.first in LABELS else "none")] += 1
     rows = [t for t in LABELS if any(counts[(t, p)] for p in LABELS)]
-    head = "| concealed \\ named first | " + " | ".join(SHORT[p] for p in LABELS) + " |"
+    head = "| concealed \\ named first | " + " | ".join(SHORT.get(p, p) for p in LABELS) + " |"
     sep = "|---|" + "---|" * len(LABELS)
     lines = [head, sep]
     for t in rows:
