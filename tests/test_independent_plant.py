@@ -99,3 +99,11 @@ def test_matrix_subset_on_the_independent_plant(
     case = Case(name, family, Effect(effect) if effect else None, seed, duration_s=12.0)
     result = run_case(case, plant=load_plant("independent"))
     assert result.exact, result
+
+
+def test_matrix_command_refuses_an_unknown_plant(capsys: pytest.CaptureFixture[str]) -> None:
+    from plant_sim.diagnose.matrix import main
+
+    assert main(["--plant", "bogus"]) == 2
+    err = capsys.readouterr().err
+    assert "--plant 'bogus'" in err and "kernel, independent" in err
