@@ -132,7 +132,7 @@ def test_validate_with_a_second_recording(
     )
     assert code == 0
     report = json.loads((out / "report.json").read_text())
-    assert report["recording"]["validation"] == "second recording"
+    assert report["recording"]["validation"] == "1 second recording(s)"
     assert report["left_out"] == ["constant_load_torque"]
 
 

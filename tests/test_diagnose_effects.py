@@ -12,16 +12,19 @@ import pytest
 from plant_sim.axis import AxisConfig
 from plant_sim.diagnose.effects import (
     EFFECT_KEYS,
-    DataScales,
+    MODELS,
     Effect,
-    Evidence,
-    candidate_specs,
-    contact_antiresonance,
     effects_in,
     experiment_for,
+)
+from plant_sim.diagnose.evidence import (
+    DataScales,
+    Evidence,
+    data_scales,
     inverse_dynamics,
     periodic_peaks,
 )
+from plant_sim.diagnose.parameters import contact_antiresonance
 from plant_sim.diagnose.replay import prepare_replay, replay
 from plant_sim.diagnose.synthetic import slide_axis
 from plant_sim.model import KernelOptions, default_substeps
@@ -45,9 +48,11 @@ def test_effect_names_and_keys_are_the_specs_table() -> None:
         parts = [k.strip() for k in keys.split(",")]
         section = parts[0].split(".")[0]
         table[name] = [k if "." in k and not k.startswith(".") else f"{section}{k}" for k in parts]
-    assert set(table) == {e.value for e in Effect}
-    for effect in Effect:
-        assert list(EFFECT_KEYS[effect]) == table[effect.value], effect
+    # the spec's table, plus the effects this project added (docs/diagnosis.md)
+    assert set(table) | {"sensor_time_offset"} == {e.value for e in Effect}
+    for name, keys in table.items():
+        assert list(EFFECT_KEYS[Effect(name)]) == keys, name
+    assert EFFECT_KEYS[Effect.SENSOR_TIME_OFFSET] == ("control.sensor_time_offset",)
 
 
 def test_effects_in_reads_present_keys() -> None:
@@ -95,8 +100,6 @@ def test_inverse_dynamics_starting_values() -> None:
     tau = axis.total_inertia * kr * a + 0.08 * np.sign(v) + 0.4 * v + 0.01
     rec = Trace({"time": t, "position_reference": x, "motor_position": kr * x, "motor_torque": tau})
     inp = prepare_replay(rec, axis)
-    from plant_sim.diagnose.effects import data_scales
-
     est = inverse_dynamics(inp, axis, data_scales(inp))
     assert est["mechanics.load_mass"] == pytest.approx(25.0, rel=0.02)
     assert est["friction.coulomb"] == pytest.approx(0.08, rel=0.02)
@@ -124,10 +127,9 @@ def test_periodic_peaks_find_period_amplitude_phase() -> None:
 def test_backlash_on_a_rigid_model_adds_a_stiff_contact() -> None:
     axis = rigid_axis()
     inp = prepare_replay(_recording(axis), axis)
-    from plant_sim.diagnose.effects import data_scales
-
     ev = Evidence(inp, replay(axis, inp), data_scales(inp))
-    specs, notes = candidate_specs(Effect.BACKLASH, axis, axis, ev)
+    cand = MODELS[Effect.BACKLASH].candidate(axis, axis, ev, 4)
+    specs, notes = cand.specs, cand.notes
     base = specs[0].base
     assert base.mechanics.antiresonance == pytest.approx(contact_antiresonance(axis))
     # the contact is much stiffer than the speed loop is fast, and integrable (<= 3 substeps)

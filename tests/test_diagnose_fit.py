@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from plant_sim.axis import AxisConfig
-from plant_sim.diagnose.effects import data_scales, inverse_dynamics, nominal_spec
+from plant_sim.diagnose.evidence import data_scales, inverse_dynamics
+from plant_sim.diagnose.parameters import nominal_spec
 from plant_sim.diagnose.errors import DiagnosisOptionError
 from plant_sim.diagnose.fit import (
     PERIODIC_COS,

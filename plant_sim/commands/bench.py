@@ -101,7 +101,12 @@ def run(args: argparse.Namespace) -> int:
                 continue
             results[func] = bench()
     for key, value in results.items():
-        print(f"{key:32s} {value:.4g}" if isinstance(value, float) else f"{key:32s} {value}")
+        if isinstance(value, dict) and "table" in value:
+            print(value["table"])  # a benchmark's own summary (the full dict goes to --json)
+        elif isinstance(value, float):
+            print(f"{key:32s} {value:.4g}")
+        else:
+            print(f"{key:32s} {value}")
     if args.json:
         args.json.write_text(json.dumps(results, indent=2, default=str) + "\n")
     return 0

@@ -36,8 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="directory for the report")
     parser.add_argument(
         "--validate",
+        nargs="+",
         metavar="SECOND.csv",
-        help="second recording to score candidates on (default: held-out blocks of the first)",
+        help="one or more other recordings of the same axis to score every re-fit and "
+        "candidate on (default: held-out blocks of the first)",
     )
     parser.add_argument(
         "--alpha", type=float, default=1e-3, help="significance level per candidate (0.001)"
@@ -79,11 +81,11 @@ def run(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         recording = read_trace(args.recording)
-        validation = read_trace(args.validate) if args.validate else None
+        validation = [read_trace(v) for v in args.validate or ()]
         # check that axis and recordings fit together before any long work
         prepare_replay(recording, axis, source=str(args.recording))
-        if validation is not None:
-            prepare_replay(validation, axis, source=str(args.validate))
+        for path, trace in zip(args.validate or (), validation, strict=True):
+            prepare_replay(trace, axis, source=str(path))
     print_warnings(caught)
     from tqdm import tqdm
 
@@ -97,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", TraceWarning)  # already printed above
             warnings.simplefilter("ignore", RuntimeWarning)  # unstable trial parameter sets
-            diagnosis = diagnose(recording, axis, validation, options, bar)
+            diagnosis = diagnose(recording, axis, validation or None, options, bar)
     finally:
         bar.close()
     write_report(diagnosis, out, source=str(args.recording))
@@ -107,6 +109,13 @@ def run(args: argparse.Namespace) -> int:
         for s, f in diagnosis.fit_after.items()
     )
     print(f"left out: {left}")
+    if not diagnosis.adequacy.adequate:
+        print("the model class does not explain this recording (see report.json: adequacy)")
+    for x in diagnosis.suspects:
+        print(
+            f"sign of missing physics: {x.key} {x.nominal:.6g} -> {x.fitted:.6g}"
+            + (f" (on its {x.on_bound} bound)" if x.on_bound else "")
+        )
     print(f"simulation fit (nominal -> fitted): {fits}")
     for a in diagnosis.ambiguous:
         print(f"ambiguous: {a.named.value} or {a.alternative.value}; to tell: {a.experiment}")

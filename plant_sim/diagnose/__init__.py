@@ -3,10 +3,13 @@ the axis-file table the model leaves out, the fitted model and the proof on held
 
 Modules: :mod:`.replay` (closed-loop simulation like a recording), :mod:`.metrics` (NRMSE,
 fit %, autocorrelation time, held-out improvement test), :mod:`.mismatch` (operating
-conditions, mismatch windows, residual tests), :mod:`.effects` (the candidate effects: keys,
-bounds, starting values), :mod:`.fit` (bounded multi-start simulation-error fitting),
-:mod:`.scoring` (held-out blocks, weights, the decision's test), :mod:`.engine`
-(:func:`diagnose`), :mod:`.results` (what it returns), :mod:`.explain` (the paragraph),
+conditions, mismatch windows, residual tests), :mod:`.effects` (one class per effect: keys,
+presence, strip, candidate, description), :mod:`.parameters` (bounds, data-sheet
+uncertainty, units, suspects), :mod:`.evidence` (scales and residual features of a
+recording), :mod:`.fit` (bounded multi-start simulation-error fitting), :mod:`.scoring`
+(held-out blocks, weights, the decision's test), :mod:`.engine` (:func:`diagnose`, in
+stages), :mod:`.adequacy` (does the model class explain the recording), :mod:`.results`
+(what it returns), :mod:`.explain` (the paragraph),
 :mod:`.report` (report files), :mod:`.synthetic` (the
 concealed test set), :mod:`.matrix` (confusion matrix), :mod:`.bench`. See docs/diagnosis.md.
 

@@ -1,12 +1,21 @@
-"""The explanation paragraph of a diagnosis (what an engineer can act on)."""
+"""The explanation paragraph of a diagnosis (what an engineer can act on).
+
+Numbers are the ones written to axis_fitted.toml (rounded there, printed with ``repr``),
+with the axis's units (:func:`.parameters.key_unit`). When the best model still leaves a
+residual far above the noise, or fits poorly, the paragraph says that the model class cannot
+explain the recording, where the unexplained part is and what it points to
+(:mod:`.adequacy`) — never that the differences are noise.
+"""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
 
-from .effects import DESCRIPTION, EFFECT_KEYS, Effect
+from .adequacy import inadequate
+from .effects import MODELS
 from .mismatch import ResidualTests
+from .parameters import format_value, rounded
 from .results import Diagnosis
 
 
@@ -20,21 +29,69 @@ def _correlations(tests: Sequence[ResidualTests]) -> str:
     return ", ".join(f"{k.replace('_', ' ')} ({', '.join(v)})" for k, v in found.items())
 
 
-def _fmt(x: float) -> str:
-    return f"{x:.4g}"
+def _changes(d: Diagnosis) -> str:
+    out = []
+    for key, (nom, new) in d.fitted_values.items():
+        if not math.isfinite(nom) or nom == new:
+            continue
+        old = format_value(key, rounded(nom), d.nominal)
+        text = f"{key} {old} -> {format_value(key, new, d.fitted)}"
+        if nom != 0.0:
+            text += f" ({100.0 * (new / nom - 1.0):+.1f} %)"
+        out.append(text)
+    return "; ".join(out)
+
+
+def _suspects(d: Diagnosis) -> str:
+    items = []
+    for s in d.suspects:
+        why = f"on its {s.on_bound} bound" if s.on_bound else ""
+        if s.nominal:
+            unc = 100 * s.uncertainty
+            moved = f"moved {s.change_percent:+.0f} % (data-sheet uncertainty {unc:.0f} %)"
+            why = f"{why}, {moved}" if why else moved
+        items.append(f"{s.key} ({why})")
+    return "; ".join(items)
+
+
+def _adequacy(d: Diagnosis) -> list[str]:
+    a = d.adequacy
+    bad = [
+        f"{s} (fit {a.fit_percent[s]:.1f} %, residual {a.noise_ratio[s]:.3g} x the noise)"
+        for s in a.noise_ratio
+        if inadequate(s, a.fit_percent.get(s, 100.0), a.noise_ratio[s])
+    ]
+    parts = [
+        "The model class does not explain this recording: the best model still leaves "
+        + ", ".join(bad)
+        + "; the difference is not noise."
+    ]
+    where = [f"{k} ({v:.2g} x its share of time)" for k, v in a.by_condition.items() if v > 1.2]
+    if where:
+        parts.append("The unexplained part concentrates at: " + ", ".join(where[:3]) + ".")
+    freq = ", ".join(f"{s} {f:.3g} Hz" for s, f in a.frequency_hz.items())
+    parts.append(f"Dominant residual frequency: {freq}.")
+    corr = _correlations(d.tests_final)
+    if corr:
+        parts.append(f"The residual correlates with: {corr}.")
+    if a.hints:
+        parts.append(
+            "That points to physics outside the axis-file table: " + "; ".join(a.hints) + "."
+        )
+    return parts
 
 
 def explain(d: Diagnosis) -> str:
     """A paragraph an engineer can act on."""
-    parts: list[str] = []
-    changed = []
-    for key, (nom, new) in d.refit_values.items():
-        if math.isfinite(nom) and nom != 0.0:
-            changed.append(f"{key} {_fmt(nom)} -> {_fmt(new)} ({100.0 * (new / nom - 1.0):+.1f} %)")
-    if changed:
+    parts: list[str] = [f"Re-fit of the nominal parameters: {d.refit_decision}."]
+    if d.suspects:
         parts.append(
-            "Re-fitting the nominal parameters by simulation error gave " + "; ".join(changed) + "."
+            "Signs of missing physics (a re-fitted parameter on a bound of its range or moved "
+            "beyond its data-sheet uncertainty): " + _suspects(d) + "."
         )
+    changes = _changes(d)
+    if changes:
+        parts.append(f"axis_fitted.toml (nominal -> fitted): {changes}.")
     sig_fit = ", ".join(
         f"{s} {d.fit_before[s].fit_percent:.1f} % -> {d.fit_after[s].fit_percent:.1f} %"
         for s in d.fit_after
@@ -43,11 +100,9 @@ def explain(d: Diagnosis) -> str:
         names = []
         for e in d.left_out:
             c = next(c for c in d.candidates if c.effect is e and c.accepted)
-            keys = [k for k in c.parameters if any(k.startswith(p) for p in _effect_prefixes(e))]
-            vals = ", ".join(f"{k} = {_fmt(c.parameters[k])}" for k in keys)
             names.append(
-                f"{e.value} ({DESCRIPTION[e]}; {vals}; held-out cost "
-                f"-{c.improvement_percent:.1f} %, p = {c.p_value:.2g})"
+                f"{e.value} ({MODELS[e].description}; {MODELS[e].describe(d.fitted)}; "
+                f"held-out cost -{c.improvement_percent:.1f} %, p = {c.p_value:.2g})"
             )
         parts.append("The model leaves out " + "; then ".join(names) + ".")
         if d.mismatch_by_condition:
@@ -62,25 +117,25 @@ def explain(d: Diagnosis) -> str:
         if corr:
             parts.append(f"Its residual correlated with: {corr}.")
         parts.append(f"Simulation fit before -> after: {sig_fit}.")
-        parts.append(
-            "Add these keys to the axis file (axis_fitted.toml has them) and check the fitted "
-            "model on a second recording with `python -m plant_sim simulate --like`."
-        )
     else:
         parts.append(
-            "No effect of the axis-file table improves the held-out simulation significantly: "
-            "nothing is left out that this recording can show; the differences are explained "
-            "by the re-fitted parameters and noise."
+            "No effect of the axis-file table improves the held-out simulation significantly."
         )
-        parts.append(f"Simulation fit before -> after re-fit: {sig_fit}.")
-        nonwhite = [t.signal for t in d.tests_final if not t.white]
-        if nonwhite:
-            parts.append(
-                "The residual of " + ", ".join(nonwhite) + " is still coloured (Ljung-Box): "
-                "an unmodelled disturbance or dynamics outside the table, or an excitation too "
-                "poor to show an effect; a recording with reversals, several speeds and "
-                "standstill would test more."
-            )
+        parts.append(f"Simulation fit before -> after: {sig_fit}.")
+    if not d.adequacy.adequate:
+        parts += _adequacy(d)
+    elif not d.left_out:
+        ratios = ", ".join(f"{s} {r:.3g}" for s, r in d.adequacy.noise_ratio.items())
+        parts.append(
+            f"The best model's residual over the white-noise level: {ratios} (speed and "
+            "torque below 10, every fit at least 50 %): no effect of the table is needed to "
+            "explain this recording."
+        )
+    if d.left_out:
+        parts.append(
+            "Check the fitted model on a second recording with `python -m plant_sim simulate "
+            "--like` (or `diagnose --validate`)."
+        )
     for a in d.ambiguous:
         parts.append(
             f"{a.alternative.value} explains the data about as well as {a.named.value} "
@@ -90,7 +145,3 @@ def explain(d: Diagnosis) -> str:
         )
     parts += d.notes
     return " ".join(parts)
-
-
-def _effect_prefixes(e: Effect) -> tuple[str, ...]:
-    return EFFECT_KEYS[e]

@@ -15,8 +15,9 @@ import numpy as np
 
 from ..axis import dump_axis
 from ..trace import Trace
-from .engine import COMPARED, DECISION_RULE, Diagnosis
+from .engine import DECISION_RULE, Diagnosis
 from .fit import plain_floats
+from .parameters import key_unit, units
 
 REPORT_FILES = ("report.json", "axis_fitted.toml", "fit_before.csv", "fit_after.csv", "report.png")
 
@@ -93,6 +94,29 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
             "fit_after": d.fit_after,
             "heldout": {"refit": d.heldout_refit, "final": d.heldout_final},
             "refit": {k: {"nominal": n, "fitted": f} for k, (n, f) in d.refit_values.items()},
+            "refit_decision": d.refit_decision,
+            "suspects": [
+                {
+                    "key": x.key,
+                    "nominal": x.nominal,
+                    "fitted": x.fitted,
+                    "change_percent": x.change_percent,
+                    "uncertainty_percent": 100.0 * x.uncertainty,
+                    "on_bound": x.on_bound,
+                    "unit": key_unit(x.key, d.nominal),
+                }
+                for x in d.suspects
+            ],
+            "fitted": {
+                k: {"nominal": n, "fitted": f, "unit": key_unit(k, d.nominal)}
+                for k, (n, f) in d.fitted_values.items()
+            },
+            "heldout_cost": {
+                "nominal": d.heldout_nominal.cost,
+                "refit": d.heldout_refit.cost,
+                "final": d.heldout_final.cost,
+            },
+            "adequacy": d.adequacy,
             "explanation": d.explanation,
             "decision_rule": DECISION_RULE.format(
                 alpha=d.options.alpha, min_improvement=100.0 * d.options.min_improvement
@@ -135,52 +159,86 @@ def _compared(d: Diagnosis, signal: str, values: np.ndarray) -> np.ndarray:
     return values
 
 
+def _label(d: Diagnosis, signal: str) -> tuple[str, str]:
+    """(quantity, unit) of what ``signal`` is scored on, in the axis's units."""
+    u = units(d.nominal)
+    motor_pos = "m" if d.nominal.transmission_ratio == 1.0 and u["position"] == "m" else "rad"
+    return {
+        "motor_position": ("motor following error", motor_pos),
+        "load_position": ("load following error", u["position"]),
+        "motor_speed": ("motor speed", f"{motor_pos}/s"),
+        "motor_torque": ("motor torque" if u["torque"] == "N·m" else "motor force", u["torque"]),
+    }[signal]
+
+
 def plot_report(d: Diagnosis, path: str | Path) -> None:
+    """Per signal: recording, nominal and fitted simulation (upper panel) and the residuals
+    of the nominal, the re-fitted nominal and the fitted model (lower panel); every axis
+    with its unit, mismatch windows shaded."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
 
     signals = list(d.fit_before)
     t = d.recording.time
     fig, axes = plt.subplots(
-        2 * len(signals), 1, figsize=(13, 3.0 * 2 * len(signals)), sharex=True, squeeze=False
+        2 * len(signals), 1, figsize=(13, 2.8 * 2 * len(signals)), sharex=True, squeeze=False
     )
     axes = axes[:, 0]
     for i, s in enumerate(signals):
+        name, unit = _label(d, s)
         rec = _compared(d, s, d.recording[s])
         before = _compared(d, s, d.simulated_before[s])
         after = _compared(d, s, d.simulated_after[s])
+        refit = _compared(d, s, d.simulated_refit[s])
         ax, axr = axes[2 * i], axes[2 * i + 1]
-        ax.plot(t, rec, lw=0.6, color="0.4", label="recording")
+        ax.plot(t, rec, lw=0.6, color="0.35", label="recording")
         ax.plot(
             t,
             before,
             lw=0.8,
             color="tab:red",
-            label=f"nominal ({d.fit_before[s].fit_percent:.1f} %)",
+            label=f"nominal, fit {d.fit_before[s].fit_percent:.1f} %",
         )
         ax.plot(
-            t, after, lw=0.8, color="tab:blue", label=f"fitted ({d.fit_after[s].fit_percent:.1f} %)"
+            t,
+            after,
+            lw=0.8,
+            color="tab:blue",
+            label=f"fitted, fit {d.fit_after[s].fit_percent:.1f} %",
         )
-        ax.set_ylabel(COMPARED[s].split(" (")[0].replace("following error ", "f.e. "), fontsize=8)
-        ax.legend(loc="upper right", fontsize=7)
-        refit = _compared(d, s, d.simulated_refit[s])
+        ax.set_ylabel(f"{name}\n({unit})", fontsize=9)
         axr.plot(t, rec - before, lw=0.4, color="tab:red", alpha=0.5, label="recording − nominal")
         axr.plot(t, rec - refit, lw=0.5, color="tab:orange", label="recording − re-fitted nominal")
         axr.plot(t, rec - after, lw=0.5, color="tab:blue", label="recording − fitted")
         axr.axhline(0.0, color="k", lw=0.5)
-        axr.set_ylabel(f"residual {s}", fontsize=8)
-        axr.legend(loc="upper right", fontsize=7)
+        axr.set_ylabel(f"residual\n({unit})", fontsize=9)
+        shaded = False
         for m in d.mismatch:
             if m.signal == s:
+                shaded = True
                 for a in (ax, axr):
                     a.axvspan(m.t_start, m.t_end, color="orange", alpha=0.25, lw=0)
-    axes[-1].set_xlabel("time (s)")
+        extra = [Patch(color="orange", alpha=0.25, label="mismatch window")] if shaded else []
+        for a in (ax, axr):
+            handles, _ = a.get_legend_handles_labels()
+            a.legend(
+                handles=handles + extra,
+                loc="upper left",
+                bbox_to_anchor=(1.005, 1.0),
+                fontsize=8,
+                frameon=False,
+            )
+            a.tick_params(labelsize=8)
+            a.grid(True, lw=0.3, alpha=0.5)
+    axes[-1].set_xlabel("time (s)", fontsize=9)
     named = ", ".join(e.value for e in d.left_out) or "nothing"
-    fig.suptitle(f"Diagnosis: left out {named} (shaded: mismatch windows of the re-fitted nominal)")
-    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.98))
-    fig.savefig(path, dpi=80)
+    verdict = "" if d.adequacy.adequate else " — the model class does not explain the recording"
+    fig.suptitle(f"Diagnosis: left out {named}{verdict}", fontsize=11)
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.985))
+    fig.savefig(path, dpi=90)
     plt.close(fig)
 
 

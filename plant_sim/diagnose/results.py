@@ -13,6 +13,7 @@ from .effects import Effect
 from .errors import DiagnosisOptionError
 from .metrics import fit_percent, nrmse
 from .mismatch import MismatchWindow, ResidualTests
+from .parameters import Suspect
 from .replay import ReplayInput, compared_quantity
 
 DECISION_RULE = (
@@ -57,7 +58,12 @@ class DiagnosisOptions:
             ("alpha", self.alpha, 0.0 < self.alpha < 1.0, "(0, 1)"),
             ("min_improvement", self.min_improvement, 0.0 <= self.min_improvement < 1.0, "[0, 1)"),
             ("block_s", self.block_s, 0.05 <= self.block_s <= 1e4, "[0.05, 10000] s"),
-            ("max_effects", self.max_effects, 0 <= self.max_effects <= len(Effect), "[0, 10]"),
+            (
+                "max_effects",
+                self.max_effects,
+                0 <= self.max_effects <= len(Effect),
+                f"[0, {len(Effect)}]",
+            ),
             ("max_nfev", self.max_nfev, 1 <= self.max_nfev <= 10_000, "[1, 10000]"),
             ("n_starts", self.n_starts, 1 <= self.n_starts <= 20, "[1, 20]"),
             (
@@ -138,6 +144,22 @@ class Ambiguity:
     experiment: str
 
 
+@dataclass(frozen=True)
+class Adequacy:
+    """Whether the best model explains the recording: per signal the RMS residual over the
+    white-noise level (``noise_ratio``), where the unexplained part sits (share of its mean
+    square per operating condition), its dominant frequency, and the regressors it correlates
+    with; ``hints``: the kinds of physics that pattern points to."""
+
+    adequate: bool
+    noise_ratio: dict[str, float]
+    fit_percent: dict[str, float]
+    by_condition: dict[str, float]
+    frequency_hz: dict[str, float]
+    correlated_with: dict[str, list[str]]
+    hints: list[str]
+
+
 @dataclass
 class Diagnosis:
     """Everything :func:`diagnose` found (``report.py`` writes it)."""
@@ -158,13 +180,20 @@ class Diagnosis:
     refit: AxisConfig
     fitted: AxisConfig
     refit_values: dict[str, tuple[float, float]]  # key -> (nominal, refitted)
+    fitted_values: dict[str, tuple[float, float]]  # key -> (nominal, in axis_fitted.toml)
+    #: re-fitted parameters that ended on a bound or moved beyond their data-sheet
+    #: uncertainty (signs of missing physics; held at nominal when effects are compared)
+    suspects: list[Suspect]
+    refit_decision: str  # which re-fit was kept and why (held-out costs)
+    heldout_nominal: Score  # held-out score of the nominal as given (final weights)
+    adequacy: Adequacy  # does the model class explain the recording (explain.py)
     notes: list[str]
     explanation: str
     simulated_before: Trace
     simulated_refit: Trace
     simulated_after: Trace
     recording: Trace
-    validation: str  # "interleaved blocks" or "second recording"
+    validation: str  # "interleaved blocks" or "N second recording(s)"
     timings_s: dict[str, float] = field(default_factory=dict)
     n_simulations: int = 0
     options: DiagnosisOptions = DiagnosisOptions()

@@ -4,7 +4,7 @@ held-out cost and the improvement test of the decision rule."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -23,18 +23,24 @@ from .results import COMPARED, Score, SignalFit
 
 
 class Scorer:
-    """Held-out scores: the odd blocks of the recording, or a second recording."""
+    """Held-out scores: the odd blocks of the recording, or one or more second recordings
+    (``val_objs``; their samples are concatenated, blocks numbered on)."""
 
     def __init__(
-        self, obj: Objective, val_obj: Objective | None, blocks: np.ndarray, lags: int = 5
+        self, obj: Objective, val_objs: Sequence[Objective], blocks: np.ndarray, lags: int = 5
     ) -> None:
         self.obj = obj
-        self.val_obj = val_obj
+        self.val_objs = list(val_objs)
         #: block number of every held-out sample
         self.blocks = blocks
         #: Newey-West lags of the held-out tests: twice the autocorrelation time of the
         #: re-fitted nominal model's held-out residual (set by the engine)
         self.lags = lags
+
+    @property
+    def signals(self) -> tuple[str, ...]:
+        objs = self.val_objs or [self.obj]
+        return tuple(s for s in self.obj.signals if all(s in o.signals for o in objs))
 
     def test(self, small: np.ndarray, big: np.ndarray) -> tuple[float, float]:
         """z and one-sided p that the held-out residuals ``big`` are the smaller ones
@@ -51,46 +57,63 @@ class Scorer:
             return 1.0
         return self.test(small[:, keep], big[:, keep])[1]
 
+    def _held(
+        self, result: FitResult
+    ) -> list[tuple[Objective, Mapping[str, np.ndarray], np.ndarray]]:
+        if not self.val_objs:
+            return [(self.obj, result.residuals, ~self.obj.train)]
+        return [
+            (v, v.residuals(result.axis, result.options), np.ones(v.inp.n_samples, dtype=bool))
+            for v in self.val_objs
+        ]
+
     def score(self, result: FitResult, n_free: int) -> tuple[Score, np.ndarray]:
         """Held-out score and the held-out scaled residuals (rows: signals)."""
-        if self.val_obj is None:
-            res = result.residuals
-            mask = ~self.obj.train
-            obj = self.obj
-            inp = self.obj.inp
-        else:
-            res = self.val_obj.residuals(result.axis, result.options)
-            mask = np.ones(self.val_obj.inp.n_samples, dtype=bool)
-            obj = self.val_obj
-            inp = self.val_obj.inp
-        cost = obj.cost(res, mask)
-        per = {s: float(np.mean(robust(res[s][mask]) ** 2)) for s in obj.signals}
-        total = sum(per.values()) or 1.0
-        tau = sum(per[s] / total * autocorrelation_time(robust(res[s][mask])) for s in obj.signals)
-        n = int(mask.sum())
+        held = self._held(result)
+        signals = self.signals
+        res = {s: np.concatenate([r[s][m] for _, r, m in held]) for s in signals}
+        y = {s: np.concatenate([o.inp.compared(s)[m] for o, _, m in held]) for s in signals}
+        n = len(res[signals[0]])
+        rob = {s: robust(res[s]) for s in signals}
+        per = {s: float(np.mean(rob[s] ** 2)) for s in signals}
+        cost = sum(per.values())
+        total = cost or 1.0
+        tau = sum(per[s] / total * autocorrelation_time(rob[s]) for s in signals)
         n_eff = effective_samples(n, tau)
         fits = {}
-        for s in obj.signals:
-            y = inp.compared(s)[mask]
-            # residual is (y - ŷ)/scale
-            yh = y - res[s][mask] * obj.scales[s]
-            fits[s] = SignalFit(nrmse(y, yh), fit_percent(y, yh), COMPARED[s])
+        for s in signals:
+            yh = y[s] - res[s] * held[0][0].scales[s]  # residual is (y - ŷ)/scale
+            fits[s] = SignalFit(nrmse(y[s], yh), fit_percent(y[s], yh), COMPARED[s])
         bic = information_criterion(cost, n_eff, n_free)
-        loss = np.array([robust(res[s][mask]) for s in obj.signals]) / math.sqrt(n)
+        loss = np.array([rob[s] for s in signals]) / math.sqrt(n)
         return Score(cost, n, n_eff, n_free, bic, fits), loss
 
 
-def validation_objective(
-    val_inp: ReplayInput | None,
+def validation_objectives(
+    val_inps: Sequence[ReplayInput],
     weights: Mapping[str, float],
-    previous: Objective | None,
+    previous: Sequence[Objective],
     retired: list[Objective],
-) -> Objective | None:
-    if val_inp is None:
-        return None
-    if previous is not None:
-        retired.append(previous)
-    return Objective(val_inp, np.ones(val_inp.n_samples, dtype=bool), weights)
+) -> list[Objective]:
+    """Held-out objectives of the second recordings under new signal weights (the previous
+    ones are retired: their simulation counts still add up)."""
+    retired.extend(previous)
+    return [Objective(v, np.ones(v.n_samples, dtype=bool), weights) for v in val_inps]
+
+
+def heldout_blocks(
+    time_s: np.ndarray, train: np.ndarray, val_inps: Sequence[ReplayInput], block_s: float
+) -> np.ndarray:
+    """Block number of every held-out sample: the odd blocks of the recording, or the blocks
+    of the second recordings numbered on from one recording to the next."""
+    if not val_inps:
+        return block_index(time_s, block_s)[~train]
+    out, offset = [], 0
+    for v in val_inps:
+        b = block_index(v.time_s, block_s) + offset
+        out.append(b)
+        offset = int(b.max()) + 1
+    return np.concatenate(out)
 
 
 def rescaled(result: FitResult, old: Objective, new: Objective) -> FitResult:

@@ -37,7 +37,7 @@ from ..axis import AxisConfig, AxisKind, Control, Friction, Mechanics, PositionF
 from ..model import KernelOptions, default_substeps
 from ..simulate import References, simulate
 from ..trace import Trace
-from .effects import Effect
+from .effects import MODELS, Effect
 from .errors import DiagnosisOptionError
 
 #: Recording sample time in position cycles.
@@ -356,11 +356,11 @@ class GeneratedCase:
     process_nm: np.ndarray
 
 
-def _peak_demand(axis: AxisConfig, refs: References, options: KernelOptions) -> float:
+def _peak_demand(axis: AxisConfig, refs: References, plant: Simulator) -> float:
     """Peak |motor torque| without a limit (the fast moves all accelerate at the axis's
     largest acceleration, so a limit just below it clips each of them a little)."""
     free = axis.with_values({"control.torque_limit": None})
-    return float(np.max(np.abs(simulate(free, refs, None, options)["motor_torque"])))
+    return float(np.max(np.abs(plant(free, refs)["motor_torque"])))
 
 
 def _perturb(axis: AxisConfig, rng: np.random.Generator) -> AxisConfig:
@@ -374,21 +374,28 @@ def _perturb(axis: AxisConfig, rng: np.random.Generator) -> AxisConfig:
 
 
 def _strip(axis: AxisConfig, effect: Effect, truth_base: AxisConfig) -> AxisConfig:
-    """The axis without ``effect`` (back to the family's base for mechanics effects)."""
-    from .effects import EFFECT_KEYS
-
-    changes: dict[str, float | None] = {key: None for key in EFFECT_KEYS[effect]}
+    """The axis without ``effect``; backlash on a rigid family also takes its contact
+    stiffness (the truth's compliance) out."""
+    out = MODELS[effect].strip(axis)
     if effect is Effect.BACKLASH and truth_base.is_rigid:
-        changes.update({"mechanics.antiresonance": None, "mechanics.damping_ratio": None})
-    if effect is Effect.COMPLIANCE:
-        changes["mechanics.backlash"] = None
-    if effect is Effect.TORQUE_SATURATION:
-        changes["control.torque_limit"] = None
-    return axis.with_values(changes)
+        out = MODELS[Effect.COMPLIANCE].strip(out)
+    return out
 
 
-def generate(case: Case) -> GeneratedCase:
-    """Simulate the recording of ``case`` (deterministic in its seed)."""
+#: A plant as a function: noise-free closed loop of an axis on references (the recording's
+#: hidden truth): the columns time, position_reference, motor_position, load_position,
+#: motor_speed and motor_torque at every position cycle. :func:`truth_simulator` is the
+#: compiled kernel's; the test suite has an independent one (tests/independent_plant).
+Simulator = Callable[[AxisConfig, References], Trace]
+
+
+def truth_simulator(axis: AxisConfig, refs: References) -> Trace:
+    """The kernel with twice the default mechanics substeps (what :func:`generate` uses)."""
+    return simulate(axis, refs, None, KernelOptions(substeps=2 * default_substeps(axis)))
+
+
+def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
+    """Simulate the recording of ``case`` with ``plant`` (deterministic in its seed)."""
     fam = FAMILIES[case.family]
     rng = np.random.default_rng(case.seed)
     base = fam.truth
@@ -403,11 +410,11 @@ def generate(case: Case) -> GeneratedCase:
         variant = fam.effects[case.effect][case.seed % len(fam.effects[case.effect])]
         changes = dict(variant)
         if case.effect is Effect.TORQUE_SATURATION:
-            peak = _peak_demand(base, refs, KernelOptions(substeps=2 * default_substeps(base)))
+            peak = _peak_demand(base, refs, plant)
             changes["control.torque_limit"] = float(variant["control.torque_limit"] or 1.0) * peak
         truth = base.with_values(changes)
     truth_without = truth if case.effect is None else _strip(truth, case.effect, base)
-    sim = simulate(truth, refs, None, KernelOptions(substeps=2 * default_substeps(truth)))
+    sim = plant(truth, refs)
     nominal = _perturb(truth_without, rng)
     keep = slice(0, None, DECIMATION)
     noise = fam.noise
@@ -431,17 +438,6 @@ def generate(case: Case) -> GeneratedCase:
         references=refs,
         process_nm=process,
     )
-
-
-#: A plant as a function: noise-free closed loop of an axis on references (the recording's
-#: hidden truth). :func:`truth_simulator` is the compiled kernel's; the test suite has an
-#: independent one (tests/independent_plant).
-Simulator = Callable[[AxisConfig, References], Trace]
-
-
-def truth_simulator(axis: AxisConfig, refs: References) -> Trace:
-    """The kernel with twice the default mechanics substeps (what :func:`generate` uses)."""
-    return simulate(axis, refs, None, KernelOptions(substeps=2 * default_substeps(axis)))
 
 
 def concealment(gen: GeneratedCase, simulator: Simulator | None = None) -> dict[str, float]:
@@ -484,7 +480,7 @@ def test_set(
     cases: list[Case] = []
     k = 0
     for fam in families:
-        for effect in Effect:
+        for effect in FAMILIES[fam].effects:
             cases.append(Case(f"{fam}-{effect.value}", fam, effect, seed * 1000 + k, duration_s))
             k += 1
         for i in range(none_per_family):
