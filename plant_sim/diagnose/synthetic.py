@@ -84,9 +84,11 @@ def _add_sensor_offset(
     effects: dict[Effect, tuple[dict[str, float | None], ...]], offset_s: float
 ) -> None:
     """The sensor time offset as a concealed effect, once the diagnosis knows the effect
-    (``Effect.SENSOR_TIME_OFFSET``): a few tens of µs, i.e. v·offset of a few noise stds of
-    the load scale at the feeds. Positive: the load scale is read late (on the mill it is in
-    the position loop, on the slide only recorded)."""
+    (``Effect.SENSOR_TIME_OFFSET``): a fraction of a position cycle (0.3 ms on the mill,
+    0.5 ms on the slide), about what a drive's and a scale's sampling instants differ by;
+    invisible in the torque, a few µm between the two position columns at the feeds.
+    Positive: the load scale is read late (on the mill it is in the position loop, on the
+    slide only recorded)."""
     effect = getattr(Effect, "SENSOR_TIME_OFFSET", None)
     if effect is not None:
         effects[effect] = ({"control.sensor_time_offset": offset_s},)
@@ -134,7 +136,7 @@ def _mill() -> Family:
         Effect.TORQUE_SATURATION: ({"control.torque_limit": 0.95},),
         Effect.TIME_DELAY: ({"control.delay": 0.0005},),
     }
-    _add_sensor_offset(effects, 2e-5)
+    _add_sensor_offset(effects, 3e-4)
     return Family(
         name="mill",
         truth=truth,
@@ -202,7 +204,7 @@ def _slide() -> Family:
         Effect.TORQUE_SATURATION: ({"control.torque_limit": 0.93},),
         Effect.TIME_DELAY: ({"control.delay": 0.000375},),
     }
-    _add_sensor_offset(effects, 5e-5)
+    _add_sensor_offset(effects, 5e-4)
     return Family(
         name="slide",
         truth=truth,
