@@ -148,7 +148,15 @@ def test_rigid_nominal_with_zero_backlash_never_aborts() -> None:
     assert d.left_out == [Effect.COMPLIANCE]
     assert d.fitted.mechanics.antiresonance == pytest.approx(800.0, rel=0.05)
     assert (d.fitted.mechanics.backlash or 0.0) < 1e-9  # free once elastic, stays ~0
-    assert axis_from_mapping(tomllib.loads(dump_axis(d.fitted))) == d.fitted
+    text = dump_axis(d.fitted)
+    assert axis_from_mapping(tomllib.loads(text)) == d.fitted
+    # issue 9 item 4: the explanation's numbers are the file's, with the axis's units
+    wa = d.fitted.mechanics.antiresonance
+    assert f"antiresonance = {wa!r}" in text
+    assert f"mechanics.antiresonance = {wa!r} rad/s" in d.explanation
+    for key, (nominal_value, value) in d.fitted_values.items():
+        if nominal_value != value:
+            assert repr(value) in d.explanation, key
 
 
 @pytest.mark.slow

@@ -31,6 +31,7 @@ from .parameters import (
     max_antiresonance,
     options_for,
     parameter_for,
+    rounded,
     speed_loop_bandwidth,
 )
 from .replay import replay
@@ -149,8 +150,8 @@ class Backlash(EffectModel):
             )
             notes.append(
                 f"backlash needs a contact stiffness: a stiff mechanics.antiresonance = "
-                f"{wa:.4g} rad/s (ten times the speed-loop bandwidth) with damping_ratio = "
-                f"{CONTACT_DAMPING} was added with it and not fitted"
+                f"{rounded(wa)!r} rad/s (ten times the speed-loop bandwidth) with "
+                f"damping_ratio = {CONTACT_DAMPING} was added with it and not fitted"
             )
         guesses = [0.002 * sc.following_error, 0.02 * sc.following_error]
         if "motor_position" in rec and "load_position" in rec:

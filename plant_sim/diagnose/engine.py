@@ -423,6 +423,7 @@ def _round(
             parameters=axis_values(res.values),
             heldout=score,
             improvement_percent=100.0 * gain,
+            training_improvement_percent=100.0 * (1.0 - res.cost / sel.current.cost),
             z_statistic=z,
             p_value=p,
             p_without_best_block=p_rest,
@@ -598,10 +599,14 @@ def _finish(ctx: _Context, base: _Base, located: _Located, sel: _Selection) -> D
     fit_after = signal_fits(inp, sim_after)
     adequacy = assess(final_res, located.kin, located.labels, tests_final, fit_after)
     if sel.hold and sel.added:
+        where = ", ".join(
+            f"{k} ({'nominal' if fitted.value(k) == nominal.value(k) else 're-fitted'} in "
+            "axis_fitted.toml)"
+            for k in sel.hold
+        )
         ctx.notes.append(
-            "held at their nominal values while effects were compared and in the fitted "
-            f"model: {', '.join(sel.hold)} (their re-fit moved them beyond their data-sheet "
-            "uncertainty)"
+            "held at their nominal values while effects were compared (a re-fit moved them "
+            f"beyond their data-sheet uncertainty or onto a bound): {where}"
         )
     ranked = sorted(
         sel.candidates.values(), key=lambda c: (c.round, not c.accepted, -c.improvement_percent)

@@ -136,6 +136,19 @@ def explain(d: Diagnosis) -> str:
             "Check the fitted model on a second recording with `python -m plant_sim simulate "
             "--like` (or `diagnose --validate`)."
         )
+    overfit = [
+        f"{c.effect.value} (round {c.round}: fitting data {c.training_improvement_percent:+.1f} %, "
+        f"held-out {c.improvement_percent:+.1f} %)"
+        for c in d.candidates
+        if c.training_improvement_percent >= 100.0 * d.options.min_improvement
+        and c.improvement_percent < 0.0
+    ]
+    if overfit:
+        parts.append(
+            "Rejected because they fit the fitting data better and the held-out data worse: "
+            + "; ".join(overfit)
+            + "."
+        )
     for a in d.ambiguous:
         parts.append(
             f"{a.alternative.value} explains the data about as well as {a.named.value} "

@@ -65,6 +65,7 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
                     },
                     "information_criterion": c.heldout.bic,
                     "improvement_percent": c.improvement_percent,
+                    "training_improvement_percent": c.training_improvement_percent,
                     "f_statistic": c.f_statistic,
                     "z_statistic": c.z_statistic,
                     "p_value": c.p_value,

@@ -123,6 +123,7 @@ class CandidateResult:
     parameters: dict[str, float]  # fitted values of the effect's keys and the refitted ones
     heldout: Score
     improvement_percent: float  # held-out cost reduction against the model of its round
+    training_improvement_percent: float  # the same on the data it was fitted to
     z_statistic: float  # z of that reduction against the noise (the decision)
     p_value: float  # its one-sided p-value
     p_without_best_block: float  # the same without the held-out block that gains most
