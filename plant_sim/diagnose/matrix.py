@@ -128,10 +128,19 @@ def run_matrix(
     options: DiagnosisOptions = DEFAULT_OPTIONS,
     on_result: Callable[[CaseResult], None] | None = None,
     plant: MatrixPlant = KERNEL_PLANT,
+    on_error: Callable[[Case, Exception], None] | None = None,
 ) -> list[CaseResult]:
+    """One result per case; with ``on_error`` a case whose diagnosis raises is reported there
+    and left out (without it the exception propagates)."""
     results = []
     for case in cases:
-        r = run_case(case, options, plant)
+        try:
+            r = run_case(case, options, plant)
+        except Exception as exc:
+            if on_error is None:
+                raise
+            on_error(case, exc)
+            continue
         results.append(r)
         if on_result is not None:
             on_result(r)
@@ -280,8 +289,15 @@ def main(argv: list[str] | None = None) -> int:
             sink.write(json.dumps(asdict(r)) + "\n")
             sink.flush()
 
+    failed: list[str] = []
+
+    def on_error(case: Case, exc: Exception) -> None:
+        line = f"{case.name}: diagnosis failed ({type(exc).__name__}: {exc})"
+        print(line, file=sys.stderr, flush=True)
+        failed.append(line)
+
     try:
-        results = run_matrix(cases, on_result=on_result, plant=plant)
+        results = run_matrix(cases, on_result=on_result, plant=plant, on_error=on_error)
     finally:
         if sink is not None:
             sink.close()
@@ -291,6 +307,8 @@ def main(argv: list[str] | None = None) -> int:
         + "\n\n"
         + cases_markdown(results)
         + "\n"
+        + "".join(f"\nNot counted: {line}" for line in failed)
+        + ("\n" if failed else "")
     )
     print(text, end="")
     if out_dir is not None:
