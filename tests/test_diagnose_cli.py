@@ -24,6 +24,8 @@ def case_files(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Pa
     csv, toml = write_case(gen, d)
     second = generate(Case("slide-load-2", "slide", Effect.CONSTANT_LOAD_TORQUE, 1017, 10.0))
     second.recording.to_csv(d / "second.csv")
+    third = generate(Case("slide-load-3", "slide", Effect.CONSTANT_LOAD_TORQUE, 1018, 6.0))
+    third.recording.to_csv(d / "third.csv")
     return csv, toml, d / "second.csv"
 
 
@@ -125,6 +127,7 @@ def test_validate_with_a_second_recording(
             "--no-progress",
             "--validate",
             str(second),
+            str(second.parent / "third.csv"),
             "--effects",
             "constant_load_torque",
             "backlash",
@@ -132,7 +135,9 @@ def test_validate_with_a_second_recording(
     )
     assert code == 0
     report = json.loads((out / "report.json").read_text())
-    assert report["recording"]["validation"] == "1 second recording(s)"
+    assert report["recording"]["validation"] == "2 second recording(s)"
+    # every re-fit was chosen on the second recordings: the one kept beat the nominal there
+    assert report["heldout_cost"]["refit"] <= report["heldout_cost"]["nominal"]
     assert report["left_out"] == ["constant_load_torque"]
 
 

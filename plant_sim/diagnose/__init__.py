@@ -8,10 +8,11 @@ presence, strip, candidate, description), :mod:`.parameters` (bounds, data-sheet
 uncertainty, units, suspects), :mod:`.evidence` (scales and residual features of a
 recording), :mod:`.fit` (bounded multi-start simulation-error fitting), :mod:`.scoring`
 (held-out blocks, weights, the decision's test), :mod:`.engine` (:func:`diagnose`, in
-stages), :mod:`.adequacy` (does the model class explain the recording), :mod:`.results`
-(what it returns), :mod:`.explain` (the paragraph),
-:mod:`.report` (report files), :mod:`.synthetic` (the
-concealed test set), :mod:`.matrix` (confusion matrix), :mod:`.bench`. See docs/diagnosis.md.
+stages; :mod:`.stages` their state, :mod:`.selection` the forward selection),
+:mod:`.adequacy` (does the model class explain the recording), :mod:`.results` (what it
+returns), :mod:`.explain` (the paragraph), :mod:`.report` (report files), :mod:`.synthetic`
+(the concealed test set), :mod:`.matrix` (confusion matrix), :mod:`.bench`.
+See docs/diagnosis.md.
 
 >>> from plant_sim.diagnose import diagnose, write_report
 >>> d = diagnose(read_trace("rec.csv"), load_axis("axis.toml"))

@@ -14,9 +14,10 @@ Stages (one function each):
    re-fit with suspects at nominal the one with the lowest held-out cost is the base model.
 3. :func:`_locate` — the base model's residual in time and by operating condition, its
    whiteness and correlations (:mod:`.mismatch`).
-4. :func:`_select` — forward selection: every effect of the table (:data:`.effects.MODELS`)
-   the model lacks is added with the suspects held at their nominal values (an effect is
-   compared with the re-fit on equal terms: a dead time is not explained away by damping)
+4. :func:`.selection.select` — forward selection: every effect of the table
+   (:data:`.effects.MODELS`) the model lacks is added with the suspects held at their
+   nominal values (an effect is compared with the re-fit on equal terms: a dead time is not
+   explained away by damping)
    and scored on the held-out data (:mod:`.scoring`); the best one that passes the decision
    rule is named, all parameters are re-fitted with it, and the next round starts.
 5. :func:`_finish` — final scores; a fitted model worse than the nominal on the held-out
@@ -36,9 +37,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -46,8 +46,8 @@ from ..axis import AxisConfig
 from ..errors import AxisFileError
 from ..trace import Trace
 from .adequacy import assess
-from .effects import MODELS, Effect, Evidence, effects_in, experiment_for
-from .evidence import DataScales, data_scales, inverse_dynamics
+from .effects import MODELS, Effect
+from .evidence import data_scales, inverse_dynamics
 from .explain import explain
 from .fit import (
     PERIODIC_COS,
@@ -55,15 +55,11 @@ from .fit import (
     FitResult,
     FitSpec,
     Objective,
-    Parameter,
     fit,
     plain_floats,
     restart,
 )
-from .metrics import f_test
 from .mismatch import (
-    Kinematics,
-    ResidualTests,
     classify,
     condition_summary,
     find_windows,
@@ -71,15 +67,12 @@ from .mismatch import (
     residual_tests,
 )
 from .parameters import (
-    Suspect,
-    base_parameters,
-    free_keys,
     held_at_nominal,
     nominal_spec,
     rounded,
     suspects,
 )
-from .replay import ReplayInput, compared_quantity, prepare_replay, replay
+from .replay import compared_quantity, prepare_replay, replay
 from .results import (
     COMPARED,
     DECISION_RULE,
@@ -100,6 +93,8 @@ from .scoring import (
     training_blocks,
     validation_objectives,
 )
+from .selection import Selection, select
+from .stages import Base, Context, Located, axis_values
 
 __all__ = [
     "COMPARED",
@@ -118,82 +113,6 @@ __all__ = [
 
 DEFAULT_OPTIONS = DiagnosisOptions()
 
-#: A candidate whose own parameters alone gain less than SCREEN x min_improvement of the
-#: training cost is not re-fitted jointly (it cannot become significant); iterations of that
-#: screening fit.
-SCREEN = 0.25
-#: Largest p-value of the held-out test without the block that gains most (an effect must
-#: show in more than one place).
-P_REST = 0.1
-SCREEN_NFEV = 15
-
-
-@dataclass
-class _Context:
-    """What every stage reads: the inputs, the options and the bookkeeping."""
-
-    recording: Trace
-    nominal: AxisConfig
-    inp: ReplayInput
-    val_inps: list[ReplayInput]
-    scales: DataScales
-    train: np.ndarray
-    options: DiagnosisOptions
-    progress: ProgressBar | None
-    t_start: float
-    timings: dict[str, float] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    #: objectives no longer used (their simulation counts still add up)
-    retired: list[Objective] = field(default_factory=list)
-
-    def tick(self, n: int) -> None:
-        if self.progress is not None:
-            self.progress.update(n)
-
-    def stage(self, desc: str) -> None:
-        if self.progress is not None:
-            self.progress.set_description(desc)
-
-
-@dataclass
-class _Base:
-    """Stage 2's result: the base model every effect is compared with."""
-
-    spec0: FitSpec
-    obj: Objective
-    scorer: Scorer
-    nominal_fit: FitResult  # the nominal as given, residuals under ``obj``
-    refit: FitResult  # the unconstrained re-fit
-    base: FitResult  # the one kept (lowest held-out cost)
-    score: Score
-    loss: np.ndarray
-    suspects: list[Suspect]
-    hold: list[str]  # keys held at nominal when effects are compared
-    decision: str
-
-
-@dataclass
-class _Located:
-    kin: Kinematics
-    labels: np.ndarray
-    residuals: dict[str, np.ndarray]
-    tests: list[ResidualTests]
-    simulated: Trace
-
-
-@dataclass
-class _Selection:
-    added: list[Effect]
-    current: FitResult
-    score: Score
-    loss: np.ndarray
-    simulated: Trace
-    obj: Objective
-    scorer: Scorer
-    candidates: dict[tuple[Effect, int], CandidateResult]
-    ambiguous: list[Ambiguity]
-    hold: list[str]
-
 
 def diagnose(
     recording: Trace,
@@ -210,7 +129,7 @@ def diagnose(
     ctx = _prepare(recording, nominal, validation, options, progress)
     base = _refit_nominal(ctx)
     located = _locate(ctx, base)
-    selection = _select(ctx, base, located)
+    selection = select(ctx, base, located)
     return _finish(ctx, base, located, selection)
 
 
@@ -223,7 +142,7 @@ def _prepare(
     validation: Trace | Sequence[Trace] | None,
     options: DiagnosisOptions,
     progress: ProgressBar | None,
-) -> _Context:
+) -> Context:
     t_start = time.perf_counter()
     inp = prepare_replay(recording, nominal)
     if validation is None:
@@ -240,7 +159,7 @@ def _prepare(
         if not val_inps
         else np.ones(inp.n_samples, dtype=bool)
     )
-    return _Context(
+    return Context(
         recording, nominal, inp, val_inps, data_scales(inp), train, options, progress, t_start
     )
 
@@ -248,7 +167,7 @@ def _prepare(
 # ----------------------------------------------------------------------------------------
 # 2. re-fit of the nominal model
 # ----------------------------------------------------------------------------------------
-def _refit_nominal(ctx: _Context) -> _Base:
+def _refit_nominal(ctx: Context) -> Base:
     ctx.stage("nominal")
     opts, nominal, inp = ctx.options, ctx.nominal, ctx.inp
     spec0 = nominal_spec(
@@ -301,15 +220,13 @@ def _refit_nominal(ctx: _Context) -> _Base:
             f"({100.0 * (1.0 - s_best.cost / s_nom.cost):.1f} % below the nominal)"
         )
     ctx.timings["nominal_refit"] = time.perf_counter() - ctx.t_start
-    return _Base(
-        spec0, obj, scorer, nominal_fit, refit, best, s_best, l_best, found, hold, decision
-    )
+    return Base(spec0, obj, scorer, nominal_fit, refit, best, s_best, l_best, found, hold, decision)
 
 
 # ----------------------------------------------------------------------------------------
 # 3. where and when
 # ----------------------------------------------------------------------------------------
-def _locate(ctx: _Context, base: _Base) -> _Located:
+def _locate(ctx: Context, base: Base) -> Located:
     t0 = time.perf_counter()
     inp = ctx.inp
     sim = replay(base.base.axis, inp, base.base.options)
@@ -317,265 +234,13 @@ def _locate(ctx: _Context, base: _Base) -> _Located:
     labels = classify(kin, ctx.nominal.control.kv)
     res = {s: inp.compared(s) - compared_quantity(inp, s, sim[s]) for s in inp.signals}
     ctx.timings["mismatch"] = time.perf_counter() - t0
-    return _Located(kin, labels, res, residual_tests(res, kin), sim)
-
-
-# ----------------------------------------------------------------------------------------
-# 4. forward selection
-# ----------------------------------------------------------------------------------------
-def _select(ctx: _Context, base: _Base, located: _Located) -> _Selection:
-    t0 = time.perf_counter()
-    opts = ctx.options
-    sel = _Selection(
-        added=[],
-        current=base.base,
-        score=base.score,
-        loss=base.loss,
-        simulated=located.simulated,
-        obj=base.obj,
-        scorer=base.scorer,
-        candidates={},
-        ambiguous=[],
-        hold=list(base.hold),
-    )
-    model_effects = set(effects_in(ctx.nominal))
-    fixed: list[str] = []
-    last_gain: dict[Effect, float] = {}
-    pool = ThreadPoolExecutor(max_workers=opts.jobs) if opts.jobs > 1 else None
-    try:
-        for rnd in range(1, opts.max_effects + 1):
-            cands = [e for e in opts.effects if e not in model_effects]
-            if rnd > 1:
-                cands = [e for e in cands if last_gain.get(e, 1.0) > 0.0]
-            if not cands:
-                break
-            ctx.stage(f"round {rnd}: {len(cands)} candidates")
-            scored = _round(ctx, sel, rnd, cands, fixed, pool, last_gain)
-            chosen = _decide(ctx, sel, scored)
-            if chosen is None:
-                break
-            cr, chosen_fit, chosen_loss = chosen
-            sel.candidates[(cr.effect, rnd)] = replace(cr, accepted=True)
-            sel.added.append(cr.effect)
-            model_effects.add(cr.effect)
-            ctx.notes.extend(cr.notes)
-            fixed += MODELS[cr.effect].fixed_after_naming(sel.current.axis)
-            if cr.effect is Effect.COMPLIANCE:
-                fixed = [k for k in fixed if not k.startswith("mechanics.")]
-            _adopt(ctx, sel, cr, chosen_fit, chosen_loss, fixed)
-    finally:
-        if pool is not None:
-            pool.shutdown()
-    ctx.timings["candidates"] = time.perf_counter() - t0
-    return sel
-
-
-def _added_keys(added: Sequence[Effect]) -> list[str]:
-    return [k for e in added for k in MODELS[e].refit_keys]
-
-
-def _round(
-    ctx: _Context,
-    sel: _Selection,
-    rnd: int,
-    cands: Sequence[Effect],
-    fixed: Sequence[str],
-    pool: ThreadPoolExecutor | None,
-    last_gain: dict[Effect, float],
-) -> list[tuple[CandidateResult, FitResult, np.ndarray]]:
-    """Fit every candidate of a round on the model with the suspects at nominal; score,
-    test and record them."""
-    keys = free_keys(sel.current.axis, _added_keys(sel.added), [*fixed, *sel.hold])
-    on = sel.current
-    if sel.hold:
-        held_axis = held_at_nominal(on.axis, ctx.nominal, sel.hold)
-        res = sel.obj.residuals(held_axis, on.options)
-        on = replace(on, axis=held_axis, residuals=res, cost=sel.obj.cost(res))
-    evidence = Evidence(ctx.inp, sel.simulated, ctx.scales)
-
-    def run(effect: Effect) -> tuple[Effect, FitResult | None, int, list[str], float]:
-        t = time.perf_counter()
-        out = _fit_candidate(effect, on, keys, ctx, evidence, sel.obj)
-        return (*out, time.perf_counter() - t)
-
-    outcomes = list(pool.map(run, cands)) if pool else [run(e) for e in cands]
-    scored = []
-    cur = sel.score
-    for effect, res, n_effect, cnotes, secs in outcomes:
-        if res is None:
-            if rnd == 1:  # why a candidate was not tried: said once
-                ctx.notes.extend(cnotes)
-            continue
-        score, loss = sel.scorer.score(res, cur.n_free + n_effect)
-        f, f_p = f_test(cur.cost, score.cost, cur.n_free, score.n_free, score.n_eff)
-        z, p = sel.scorer.test(sel.loss, loss)
-        p_rest = sel.scorer.test_without_best_block(sel.loss, loss)
-        gain = (cur.cost - score.cost) / cur.cost
-        present = MODELS[effect].significant(res.axis, ctx.scales)
-        opts = ctx.options
-        significant = (
-            p < opts.alpha and p_rest < P_REST and gain >= opts.min_improvement and present
-        )
-        last_gain[effect] = gain
-        cr = CandidateResult(
-            effect=effect,
-            round=rnd,
-            parameters=axis_values(res.values),
-            heldout=score,
-            improvement_percent=100.0 * gain,
-            training_improvement_percent=100.0 * (1.0 - res.cost / sel.current.cost),
-            z_statistic=z,
-            p_value=p,
-            p_without_best_block=p_rest,
-            f_statistic=f,
-            f_p_value=f_p,
-            significant=significant,
-            accepted=False,
-            notes=cnotes,
-            n_simulations=res.n_simulations,
-            seconds=secs,
-        )
-        sel.candidates[(effect, rnd)] = cr
-        scored.append((cr, res, loss))
-    return scored
-
-
-def _decide(
-    ctx: _Context,
-    sel: _Selection,
-    scored: list[tuple[CandidateResult, FitResult, np.ndarray]],
-) -> tuple[CandidateResult, FitResult, np.ndarray] | None:
-    """The effect named in a round (None: none qualifies); records the ambiguities."""
-    alpha = ctx.options.alpha
-    sig = [item for item in scored if item[0].significant]
-    if not sig:
-        return None
-    scorer = sel.scorer
-    best_cr, _, best_loss = min(sig, key=lambda item: item[0].heldout.cost)
-    losses = {id(cr): lo for cr, _, lo in sig}
-    # a candidate the best one does not beat at the naming level explains the data as well;
-    # of those the one with fewest parameters is named
-    equal = [cr for cr, _, lo in sig if cr is best_cr or scorer.test(lo, best_loss)[1] >= alpha]
-    chosen = min(equal, key=lambda c: (c.heldout.n_free, c.heldout.cost))
-    chosen_fit, chosen_loss = next((r, lo) for c, r, lo in sig if c is chosen)
-
-    def ambiguity(cr: CandidateResult, p: float) -> Ambiguity:
-        return Ambiguity(
-            chosen.effect,
-            cr.effect,
-            cr.heldout.cost / chosen.heldout.cost,
-            p,
-            experiment_for(chosen.effect, cr.effect),
-        )
-
-    for cr in equal:
-        if cr is chosen:
-            continue
-        lo = losses[id(cr)]
-        if cr.heldout.cost < chosen.heldout.cost:
-            _, p = scorer.test(chosen_loss, lo)
-        else:
-            _, p = scorer.test(lo, chosen_loss)
-        sel.ambiguous.append(ambiguity(cr, p))
-    # a candidate that fits the held-out data at least as well as the named one but failed
-    # the test on its own (more parameters, more variance) is an alternative too
-    for cr, _, lo in scored:
-        if cr.significant or cr.heldout.cost > chosen.heldout.cost:
-            continue
-        sel.ambiguous.append(ambiguity(cr, scorer.test(chosen_loss, lo)[1]))
-    return chosen, chosen_fit, chosen_loss
-
-
-def _adopt(
-    ctx: _Context,
-    sel: _Selection,
-    chosen: CandidateResult,
-    chosen_fit: FitResult,
-    chosen_loss: np.ndarray,
-    fixed: Sequence[str],
-) -> None:
-    """Make the named effect's model the current one: re-weight the signals by its RMS
-    residuals (an effect that removed a large error from one signal would leave that signal
-    under-weighted), re-fit all free parameters together under those weights (the next
-    candidate must not be credited with what a re-fit of the model's own parameters gains),
-    and add parameters the polish drove out of their uncertainty to the held ones."""
-    opts = ctx.options
-    current = chosen_fit
-    weights = signal_weights(sel.obj, current)
-    ctx.retired.append(sel.obj)
-    old_obj, sel.obj = sel.obj, Objective(ctx.inp, ctx.train, weights)
-    val_objs = validation_objectives(ctx.val_inps, weights, sel.scorer.val_objs, ctx.retired)
-    sel.scorer = Scorer(sel.obj, val_objs, sel.scorer.blocks, sel.scorer.lags)
-    current = rescaled(current, old_obj, sel.obj)
-    ctx.stage(f"re-fit with {chosen.effect.value}")
-    keys = free_keys(current.axis, _added_keys(sel.added), [*fixed, *sel.hold])
-    params = base_parameters(current.axis, keys, ctx.scales, ctx.nominal)
-    spec_all = FitSpec(current.axis, params, options=current.options, n_global=0)
-    polished = fit(spec_all, sel.obj, 2 * opts.max_nfev, 1, opts.seed, ctx.tick)
-    if polished.cost < current.cost:
-        current = polished
-        more = [s.key for s in suspects(polished, params, ctx.nominal) if s.key in keys]
-        sel.hold += [k for k in more if k not in (PERIODIC_COS, PERIODIC_SIN)]
-    sel.current = current
-    sel.score, sel.loss = sel.scorer.score(current, chosen.heldout.n_free)
-    sel.simulated = replay(current.axis, ctx.inp, current.options)
-
-
-def _fit_candidate(
-    effect: Effect,
-    base: FitResult,
-    keys: Sequence[str],
-    ctx: _Context,
-    evidence: Evidence,
-    obj: Objective,
-) -> tuple[Effect, FitResult | None, int, list[str]]:
-    """Add ``effect`` to ``base``: (A) fit its own parameters alone from the data-derived
-    starts; unless that gains less than SCREEN x min_improvement on the training cost,
-    (B) re-fit them jointly with the free parameters of the model from A's optimum.
-    Returns the best fit and the number of parameters the effect adds; a candidate that
-    cannot be built as a valid axis is skipped with a note (never an abort)."""
-    opts = ctx.options
-    try:
-        cand = MODELS[effect].candidate(base.axis, ctx.nominal, evidence, opts.n_global_candidate)
-    except AxisFileError as exc:
-        return (
-            effect,
-            None,
-            0,
-            [f"{effect.value} not tried: its candidate is no valid axis ({exc})"],
-        )
-    best: FitResult | None = None
-    best_spec: FitSpec | None = None
-    try:
-        for sp in cand.specs:
-            r = fit(sp, obj, SCREEN_NFEV, 1, opts.seed, ctx.tick)
-            if best is None or r.cost < best.cost:
-                best, best_spec = r, sp
-        if best is None or best_spec is None:
-            return effect, None, 0, cand.notes
-        n_effect = best_spec.n_free
-        gain = (base.cost - best.cost) / base.cost
-        if gain < SCREEN * opts.min_improvement:
-            return effect, best, n_effect, cand.notes
-        coupled = base_parameters(base.axis, keys, evidence.scales, ctx.nominal)
-        own = [
-            Parameter(p.key, p.low, p.high, best.values[p.key], p.scale, p.log)
-            for p in best_spec.parameters
-        ]
-        joint_spec = FitSpec(best.axis, (*coupled, *own), options=best.options, n_global=0)
-        joint = fit(joint_spec, obj, opts.max_nfev, 1, opts.seed, ctx.tick)
-    except AxisFileError as exc:
-        note = f"{effect.value} skipped: a fitted value made the axis invalid ({exc})"
-        return effect, None, 0, [*cand.notes, note]
-    if joint.cost < best.cost:
-        best = replace(joint, values={**best.values, **joint.values})
-    return effect, best, n_effect, cand.notes
+    return Located(kin, labels, res, residual_tests(res, kin), sim)
 
 
 # ----------------------------------------------------------------------------------------
 # 5. final scores, adequacy, explanation
 # ----------------------------------------------------------------------------------------
-def _finish(ctx: _Context, base: _Base, located: _Located, sel: _Selection) -> Diagnosis:
+def _finish(ctx: Context, base: Base, located: Located, sel: Selection) -> Diagnosis:
     inp, nominal = ctx.inp, ctx.nominal
     fitted = rounded_axis(sel.current.axis, nominal)
     sim_after = (
@@ -687,13 +352,3 @@ def rounded_axis(axis: AxisConfig, nominal: AxisConfig) -> AxisConfig:
         return plain_floats(axis.with_values(changes)) if changes else plain_floats(axis)
     except AxisFileError:
         return plain_floats(axis)
-
-
-def axis_values(values: Mapping[str, float]) -> dict[str, float]:
-    """Fitted values keyed by axis keys (the periodic pseudo-keys become amplitude/phase)."""
-    out = {k: float(v) for k, v in values.items() if k not in (PERIODIC_COS, PERIODIC_SIN)}
-    if PERIODIC_COS in values or PERIODIC_SIN in values:
-        c, s = values.get(PERIODIC_COS, 0.0), values.get(PERIODIC_SIN, 0.0)
-        out["disturbance.periodic_amplitude"] = math.hypot(c, s)
-        out["disturbance.periodic_phase"] = math.atan2(s, c)
-    return out
