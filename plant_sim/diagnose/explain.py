@@ -18,6 +18,9 @@ from .mismatch import ResidualTests
 from .parameters import format_value, rounded
 from .results import Diagnosis
 
+#: Held-out gain (per cent) of a candidate that was not named but is worth a sentence.
+NEAR_MISS_PERCENT = 5.0
+
 
 def _correlations(tests: Sequence[ResidualTests]) -> str:
     """'speed_sign (motor_torque, motor_position), acceleration (motor_speed)'."""
@@ -126,15 +129,38 @@ def explain(d: Diagnosis) -> str:
         parts += _adequacy(d)
     elif not d.left_out:
         ratios = ", ".join(f"{s} {r:.3g}" for s, r in d.adequacy.noise_ratio.items())
-        parts.append(
-            f"The best model's residual over the white-noise level: {ratios} (speed and "
-            "torque below 10, every fit at least 50 %): no effect of the table is needed to "
-            "explain this recording."
-        )
+        near_misses = [
+            c for c in d.candidates if not c.accepted and c.improvement_percent >= NEAR_MISS_PERCENT
+        ]
+        if d.suspects or near_misses:
+            parts.append(
+                f"The best model's residual over the white-noise level: {ratios} (speed and "
+                "torque below 10, every fit at least 50 %); but the suspect parameters and the "
+                "unnamed candidates in this report say the re-fit may have absorbed an "
+                "effect: this recording does not show that nothing is left out."
+            )
+        else:
+            parts.append(
+                f"The best model's residual over the white-noise level: {ratios} (speed and "
+                "torque below 10, every fit at least 50 %): no effect of the table is needed "
+                "to explain this recording."
+            )
     if d.left_out:
         parts.append(
             "Check the fitted model on a second recording with `python -m plant_sim simulate "
             "--like` (or `diagnose --validate`)."
+        )
+    near = [
+        f"{c.effect.value} (round {c.round}: held-out cost -{c.improvement_percent:.1f} %, "
+        f"p = {c.p_value:.2g}, without the best block p = {c.p_without_best_block:.2g})"
+        for c in d.candidates
+        if not c.accepted and c.improvement_percent >= NEAR_MISS_PERCENT
+    ]
+    if near:
+        parts.append(
+            "Not named, but they improved the held-out data without passing the test (a few "
+            "events, or too little excitation; a second recording with more of them, "
+            "`--validate`, decides): " + "; ".join(near) + "."
         )
     overfit = [
         f"{c.effect.value} (round {c.round}: fitting data {c.training_improvement_percent:+.1f} %, "
