@@ -201,31 +201,36 @@ def kick_load(p: np.ndarray, v: float, f_applied: float, h: float) -> float:
 
 
 @_inline
-def _kick(p: np.ndarray, st: np.ndarray, tau: float, f_dist: float, h: float) -> None:
+def step_state(
+    p: np.ndarray, th: float, om: float, x: float, v: float, tau: float, f_dist: float, dt: float
+) -> tuple[float, float, float, float]:
+    """One staggered leapfrog step of the mechanics under constant motor torque and load force:
+    velocities live at half steps (v_{n+1/2} = v_{n-1/2} + a(x_n, v_{n-1/2})·dt, then
+    x_{n+1} = x_n + v_{n+1/2}·dt). One force evaluation per step, symplectic and second order
+    for the conservative forces, first order in the small velocity-dependent ones.
+
+    On scalars, returning the new (θ, ω, x, v): the callers keep the state in locals over a
+    speed cycle, so the compiler need not reload parameters after every store to the state
+    array (it cannot know that the two arrays do not overlap)."""
     if p[P_RIGID] != 0.0:
         kr = p[P_KR]
-        f = kr * tau + f_dist + load_force(p, st[S_X])
-        v = kick_load(p, st[S_V], f, h)
-        st[S_V] = v
-        st[S_OM] = kr * v
-        return
-    fs = spring_force(p, st[S_TH], st[S_OM], st[S_X], st[S_V])
-    st[S_OM] += (tau - fs * p[P_INV_KR]) * h * p[P_INV_J1]
-    st[S_V] = kick_load(p, st[S_V], fs + f_dist + load_force(p, st[S_X]), h)
+        v = kick_load(p, v, kr * tau + f_dist + load_force(p, x), dt)
+        x += v * dt
+        return kr * x, kr * v, x, v
+    fs = spring_force(p, th, om, x, v)
+    om += (tau - fs * p[P_INV_KR]) * dt * p[P_INV_J1]
+    v = kick_load(p, v, fs + f_dist + load_force(p, x), dt)
+    x += v * dt
+    th += om * dt
+    return th, om, x, v
 
 
 @_inline
 def substep(p: np.ndarray, st: np.ndarray, tau: float, f_dist: float, dt: float) -> None:
-    """One staggered leapfrog step of the mechanics under constant motor torque and load force:
-    velocities live at half steps (v_{n+1/2} = v_{n-1/2} + a(x_n, v_{n-1/2})·dt, then
-    x_{n+1} = x_n + v_{n+1/2}·dt). One force evaluation per step, symplectic and second order
-    for the conservative forces, first order in the small velocity-dependent ones."""
-    _kick(p, st, tau, f_dist, dt)
-    st[S_X] += st[S_V] * dt
-    if p[P_RIGID] != 0.0:
-        st[S_TH] = p[P_KR] * st[S_X]
-    else:
-        st[S_TH] += st[S_OM] * dt
+    """:func:`step_state` on the state vector."""
+    st[S_TH], st[S_OM], st[S_X], st[S_V] = step_state(
+        p, st[S_TH], st[S_OM], st[S_X], st[S_V], tau, f_dist, dt
+    )
 
 
 @_inline
@@ -248,15 +253,18 @@ def _torque_phase(p: np.ndarray, st: np.ndarray, cmd: float, f_dist: float) -> N
     dt = p[P_TSC] / nsub
     alpha = p[P_LAG_ALPHA]
     mean = p[P_LAG_MEAN]
+    th, om, x, v = st[S_TH], st[S_OM], st[S_X], st[S_V]
+    tau, tau_prev, fd_prev = st[S_TAU], st[S_TAU_PREV], st[S_FD_PREV]
     for _ in range(nsub):
-        start = st[S_TAU]
-        applied = cmd + (start - cmd) * (1.0 - mean)
-        st[S_TAU] = cmd + (start - cmd) * alpha
-        tau_kick = 0.5 * (st[S_TAU_PREV] + applied)
-        f_kick = 0.5 * (st[S_FD_PREV] + f_dist)
-        st[S_TAU_PREV] = applied
-        st[S_FD_PREV] = f_dist
-        substep(p, st, tau_kick, f_kick, dt)
+        applied = cmd + (tau - cmd) * (1.0 - mean)
+        tau = cmd + (tau - cmd) * alpha
+        tau_kick = 0.5 * (tau_prev + applied)
+        f_kick = 0.5 * (fd_prev + f_dist)
+        tau_prev = applied
+        fd_prev = f_dist
+        th, om, x, v = step_state(p, th, om, x, v, tau_kick, f_kick, dt)
+    st[S_TH], st[S_OM], st[S_X], st[S_V] = th, om, x, v
+    st[S_TAU], st[S_TAU_PREV], st[S_FD_PREV] = tau, tau_prev, fd_prev
     st[S_T] += p[P_TSC]
 
 
@@ -310,14 +318,13 @@ def motor_speed_measured(p: np.ndarray, st: np.ndarray) -> float:
 
 
 @_inline
-def speed_cycle(p: np.ndarray, st: np.ndarray, omega_set: float, f_dist: float) -> None:
-    """One speed-controller cycle: measure, PI with anti-windup, dead time, current loop,
-    mechanics for one speed cycle. The torque feed-forward ``S_TAU_FF`` adds to the
-    proportional part (so the anti-windup clamp accounts for it)."""
+def _speed_cycle(
+    p: np.ndarray, st: np.ndarray, omega_set: float, f_dist: float, tau_ff: float
+) -> None:
     tsc = p[P_TSC]
     _measure_speed(p, st)
     err = omega_set - st[S_OM_MEAS]
-    kp_part = p[P_KSP] * err + st[S_TAU_FF]
+    kp_part = p[P_KSP] * err + tau_ff
     lim = p[P_TAU_LIM]
     if p[P_KI] != 0.0:
         integ = st[S_INT] + p[P_KI] * err * tsc
@@ -338,7 +345,30 @@ def speed_cycle(p: np.ndarray, st: np.ndarray, omega_set: float, f_dist: float) 
     else:
         cmd = u
     _torque_phase(p, st, cmd, f_dist)
+
+
+@_inline
+def speed_cycle(p: np.ndarray, st: np.ndarray, omega_set: float, f_dist: float) -> None:
+    """One speed-controller cycle: measure, PI with anti-windup, dead time, current loop,
+    mechanics for one speed cycle. The torque feed-forward ``S_TAU_FF`` adds to the
+    proportional part (so the anti-windup clamp accounts for it)."""
+    _speed_cycle(p, st, omega_set, f_dist, st[S_TAU_FF])
     _push_history(p, st)
+
+
+@_inline
+def _advance(
+    p: np.ndarray, st: np.ndarray, omega_set: float, disturbance_nm: float, torque_ff_nm: float
+) -> None:
+    st[S_TAU_FF] = torque_ff_nm
+    f_dist = p[P_KR] * disturbance_nm
+    # loop invariants in locals: p and st may alias for the compiler, so a p[...] in the loop
+    # would be reloaded after every store to st
+    history = p[P_OFS_SIGN] != 0.0
+    for _ in range(int(p[P_NSC])):
+        _speed_cycle(p, st, omega_set, f_dist, torque_ff_nm)
+        if history:
+            _push_history(p, st)
 
 
 @_njit
@@ -353,10 +383,7 @@ def advance(
     (rad/s at the motor), a constant external disturbance (N·m reflected to the motor,
     positive pushes towards +x) and a constant torque feed-forward (N·m, added to the
     speed controller's output before the torque limit)."""
-    st[S_TAU_FF] = torque_ff_nm
-    f_dist = p[P_KR] * disturbance_nm
-    for _ in range(int(p[P_NSC])):
-        speed_cycle(p, st, omega_set, f_dist)
+    _advance(p, st, omega_set, disturbance_nm, torque_ff_nm)
 
 
 @_njit
@@ -431,7 +458,7 @@ def run_closed_loop(
         out[k, O_LAM] = lam
         out[k, O_WS] = w_s
         out[k, O_WC] = w_c
-        advance(p, st, w_apply, dist_nm[k], ff_apply)
+        _advance(p, st, w_apply, dist_nm[k], ff_apply)  # inlined: no call per cycle
 
 
 @_njit

@@ -93,6 +93,11 @@ def simulate(
     ``regulator``: None runs the ordinary control of Fig. 1 (the detector still measures β);
     a config with ``enabled=True`` inserts the speed regulator of Fig. 6 / eq. 15.
     Columns: the trace-file columns plus ``beta``, ``lambda``, ``omega_s``, ``omega_c``.
+
+    The axis file's feed-forward works on ``refs.speed``: ω_s·k_vff is added to the speed set
+    point (``control.velocity_feedforward``) and J_ff·k_r·Δspeed/T_p to the torque set point
+    (``control.acceleration_feedforward``); with ``control.sensor_time_offset`` the recorded
+    and fed-back positions are the sensor readings (see :mod:`plant_sim.kernel`).
     """
     p = build_params(axis, regulator, options)
     x0 = float(refs.position[0]) if start_position is None else start_position

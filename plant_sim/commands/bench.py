@@ -93,6 +93,9 @@ def run(args: argparse.Namespace) -> int:
         f"{axis.control.speed_cycle * 1e6:g} us, {default_substeps(axis)} substep(s)",
         "kernel_wall_s_per_run": kernel_wall,
         "kernel_realtime_factor": sim_s / kernel_wall,
+        # the spread of the repetitions: on a shared machine the median follows the load
+        "kernel_realtime_factor_best": sim_s / min(walls),
+        "kernel_realtime_factor_worst": sim_s / max(walls),
         "peak_rss_mb_after_kernel": kernel_rss,
     }
     ref_s = min(args.reference_seconds, sim_s)

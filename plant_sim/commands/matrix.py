@@ -83,8 +83,15 @@ def run(args: argparse.Namespace) -> int:
                 sink.write(json.dumps(asdict(r)) + "\n")
                 sink.flush()
 
+        failed: list[str] = []
+
+        def on_error(case: object, exc: Exception) -> None:
+            line = f"{case.name}: diagnosis failed ({type(exc).__name__}: {exc})"  # type: ignore[attr-defined]
+            progress.stage(line)
+            failed.append(line)
+
         try:
-            results = run_matrix(cases, on_result=on_result, plant=plant)
+            results = run_matrix(cases, on_result=on_result, plant=plant, on_error=on_error)
         finally:
             if sink is not None:
                 sink.close()
@@ -94,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
         + "\n\n"
         + cases_markdown(results)
         + "\n"
+        + "".join(f"\nNot counted: {line}" for line in failed)
+        + ("\n" if failed else "")
     )
     print(text, end="")
     if args.out is not None:

@@ -125,10 +125,19 @@ def run_matrix(
     options: DiagnosisOptions = DEFAULT_OPTIONS,
     on_result: Callable[[CaseResult], None] | None = None,
     plant: MatrixPlant = KERNEL_PLANT,
+    on_error: Callable[[Case, Exception], None] | None = None,
 ) -> list[CaseResult]:
+    """One result per case; with ``on_error`` a case whose diagnosis raises is reported there
+    and left out (without it the exception propagates)."""
     results = []
     for case in cases:
-        r = run_case(case, options, plant)
+        try:
+            r = run_case(case, options, plant)
+        except Exception as exc:
+            if on_error is None:
+                raise
+            on_error(case, exc)
+            continue
         results.append(r)
         if on_result is not None:
             on_result(r)
@@ -158,7 +167,7 @@ def confusion_markdown(results: Sequence[CaseResult]) -> str:
     for r in results:
         counts[(r.truth, r.first if r.first in LABELS else "none")] += 1
     rows = [t for t in LABELS if any(counts[(t, p)] for p in LABELS)]
-    head = "| concealed \\ named first | " + " | ".join(SHORT[p] for p in LABELS) + " |"
+    head = "| concealed \\ named first | " + " | ".join(SHORT.get(p, p) for p in LABELS) + " |"
     sep = "|---|" + "---|" * len(LABELS)
     lines = [head, sep]
     for t in rows:

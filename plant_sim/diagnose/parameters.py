@@ -181,6 +181,11 @@ def parameter_for(
     if key == "control.torque_limit":
         hi = max(3.0 * scales.torque_max, 1.5 * value)
         return Parameter(key, 0.3 * scales.torque_max, hi, value, scales.torque_max)
+    if key == "control.sensor_time_offset":
+        # as the candidate in effects.SensorTimeOffset: within ±20 position cycles
+        cyc = axis.control.position_cycle
+        lim = max(min(0.05, 20.0 * cyc), 1.01 * abs(value))
+        return Parameter(key, -lim, lim, value, cyc)
     raise KeyError(f"no fitting rule for {key!r}")
 
 

@@ -80,6 +80,20 @@ class Family:
     effects: dict[Effect, tuple[dict[str, float | None], ...]] = field(default_factory=dict)
 
 
+def _add_sensor_offset(
+    effects: dict[Effect, tuple[dict[str, float | None], ...]], offset_s: float
+) -> None:
+    """The sensor time offset as a concealed effect, once the diagnosis knows the effect
+    (``Effect.SENSOR_TIME_OFFSET``): a fraction of a position cycle (0.3 ms on the mill,
+    0.5 ms on the slide), about what a drive's and a scale's sampling instants differ by;
+    invisible in the torque, a few µm between the two position columns at the feeds.
+    Positive: the load scale is read late (on the mill it is in the position loop, on the
+    slide only recorded)."""
+    effect = getattr(Effect, "SENSOR_TIME_OFFSET", None)
+    if effect is not None:
+        effects[effect] = ({"control.sensor_time_offset": offset_s},)
+
+
 def _mill() -> Family:
     truth = AxisConfig(
         kind=AxisKind.LINEAR,
@@ -122,6 +136,7 @@ def _mill() -> Family:
         Effect.TORQUE_SATURATION: ({"control.torque_limit": 0.95},),
         Effect.TIME_DELAY: ({"control.delay": 0.0005},),
     }
+    _add_sensor_offset(effects, 3e-4)
     return Family(
         name="mill",
         truth=truth,
@@ -189,6 +204,7 @@ def _slide() -> Family:
         Effect.TORQUE_SATURATION: ({"control.torque_limit": 0.93},),
         Effect.TIME_DELAY: ({"control.delay": 0.000375},),
     }
+    _add_sensor_offset(effects, 5e-4)
     return Family(
         name="slide",
         truth=truth,
@@ -380,17 +396,11 @@ def truth_simulator(axis: AxisConfig, refs: References) -> Trace:
     return simulate(axis, refs, None, KernelOptions(substeps=2 * default_substeps(axis)))
 
 
-def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
-    """Simulate the recording of ``case`` with ``plant`` (deterministic in its seed)."""
+def hidden_axes(case: Case, refs: References, plant: Simulator) -> tuple[AxisConfig, AxisConfig]:
+    """The hidden truth of ``case`` and the truth without its concealed effect (a torque
+    limit is set relative to ``plant``'s peak demand on ``refs``)."""
     fam = FAMILIES[case.family]
-    rng = np.random.default_rng(case.seed)
     base = fam.truth
-    cycle = base.control.position_cycle
-    position = reference_profile(fam.excitation, case.duration_s, cycle, rng)
-    refs0 = References.from_position(position, cycle)
-    n = len(position)
-    process = process_disturbance(fam.noise, n, cycle, rng)
-    refs = References(refs0.position, refs0.speed, process)
     truth = base
     if case.effect is not None:
         variant = fam.effects[case.effect][case.seed % len(fam.effects[case.effect])]
@@ -400,21 +410,38 @@ def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
             changes["control.torque_limit"] = float(variant["control.torque_limit"] or 1.0) * peak
         truth = base.with_values(changes)
     truth_without = truth if case.effect is None else _strip(truth, case.effect, base)
-    sim = plant(truth, refs)
-    nominal = _perturb(truth_without, rng)
+    return truth, truth_without
+
+
+def recorded_columns(sim: Trace) -> dict[str, np.ndarray]:
+    """The columns a recording keeps, every :data:`DECIMATION`-th position cycle."""
     keep = slice(0, None, DECIMATION)
-    noise = fam.noise
-    cols = {
-        "time": sim["time"][keep],
-        "position_reference": sim["position_reference"][keep],
-        "motor_position": sim["motor_position"][keep],
-        "load_position": sim["load_position"][keep],
-        "motor_speed": sim["motor_speed"][keep],
-        "motor_torque": sim["motor_torque"][keep],
-    }
+    names = (
+        "time",
+        "position_reference",
+        "motor_position",
+        "load_position",
+        "motor_speed",
+        "motor_torque",
+    )
+    return {name: sim[name][keep] for name in names}
+
+
+def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
+    """Simulate the recording of ``case`` with ``plant`` (deterministic in its seed)."""
+    fam = FAMILIES[case.family]
+    rng = np.random.default_rng(case.seed)
+    cycle = fam.truth.control.position_cycle
+    position = reference_profile(fam.excitation, case.duration_s, cycle, rng)
+    refs0 = References.from_position(position, cycle)
+    process = process_disturbance(fam.noise, len(position), cycle, rng)
+    refs = References(refs0.position, refs0.speed, process)
+    truth, truth_without = hidden_axes(case, refs, plant)
+    nominal = _perturb(truth_without, rng)
+    cols = recorded_columns(plant(truth, refs))
     m = len(cols["time"])
     for name in ("motor_position", "load_position", "motor_speed", "motor_torque"):
-        cols[name] = cols[name] + getattr(noise, name) * rng.standard_normal(m)
+        cols[name] = cols[name] + getattr(fam.noise, name) * rng.standard_normal(m)
     return GeneratedCase(
         case=case,
         recording=Trace(cols),

@@ -19,14 +19,14 @@ import numpy as np
 from scipy import signal as sps
 
 from plant_sim.axis import AxisConfig
-from plant_sim.diagnose.effects import Effect
 from plant_sim.diagnose.synthetic import (
     DECIMATION,
     FAMILIES,
     Case,
     GeneratedCase,
     _perturb,
-    _strip,
+    hidden_axes,
+    recorded_columns,
     reference_profile,
 )
 from plant_sim.simulate import References
@@ -61,51 +61,27 @@ def process_torque(std_nm: float, n: int, cycle_s: float, rng: np.random.Generat
     return std_nm * total / max(float(np.std(total)), 1e-300)
 
 
-def _peak_demand(axis: AxisConfig, refs: References) -> float:
-    free = axis.with_values({"control.torque_limit": None})
-    return float(np.max(np.abs(simulator(free, refs)["motor_torque"])))
-
-
 def generate(case: Case) -> GeneratedCase:
     """Simulate ``case`` on the independent plant (deterministic in its seed)."""
     fam = FAMILIES[case.family]
     rng = np.random.default_rng(case.seed + SEED_SHIFT)
-    base = fam.truth
-    cycle = base.control.position_cycle
+    cycle = fam.truth.control.position_cycle
     position = reference_profile(fam.excitation, case.duration_s, cycle, rng)
     refs0 = References.from_position(position, cycle)
     n = len(position)
     process = process_torque(fam.noise.process_nm, n, cycle, rng)
     refs = References(refs0.position, refs0.speed, process)
-    truth = base
-    if case.effect is not None:
-        variant = fam.effects[case.effect][case.seed % len(fam.effects[case.effect])]
-        changes = dict(variant)
-        if case.effect is Effect.TORQUE_SATURATION:
-            fraction = float(variant["control.torque_limit"] or 1.0)
-            changes["control.torque_limit"] = fraction * _peak_demand(base, refs)
-        truth = base.with_values(changes)
-    truth_without = truth if case.effect is None else _strip(truth, case.effect, base)
-    sim = simulator(truth, refs)
+    truth, truth_without = hidden_axes(case, refs, simulator)
     nominal = _perturb(truth_without, rng)
-    keep = slice(0, None, DECIMATION)
+    cols = recorded_columns(simulator(truth, refs))
+    m = len(cols["time"])
     noise = fam.noise
     fs = 1.0 / cycle
-    cols = {
-        "time": sim["time"][keep],
-        "position_reference": sim["position_reference"][keep],
-        "motor_position": sim["motor_position"][keep],
-        "load_position": sim["load_position"][keep],
-        "motor_speed": sim["motor_speed"][keep],
-        "motor_torque": sim["motor_torque"][keep],
-    }
-    m = len(cols["time"])
-    cols["motor_torque"] = (
-        cols["motor_torque"] + noise.motor_torque * _coloured(rng, n, 300.0, fs)[keep][:m]
-    )
-    cols["motor_speed"] = (
-        cols["motor_speed"] + noise.motor_speed * _coloured(rng, n, 400.0, fs)[keep][:m]
-    )
+    keep = slice(0, None, DECIMATION)
+    torque_noise = _coloured(rng, n, 300.0, fs)[keep][:m]
+    speed_noise = _coloured(rng, n, 400.0, fs)[keep][:m]
+    cols["motor_torque"] = cols["motor_torque"] + noise.motor_torque * torque_noise
+    cols["motor_speed"] = cols["motor_speed"] + noise.motor_speed * speed_noise
     for name in ("motor_position", "load_position"):
         cols[name] = cols[name] + 0.5 * getattr(noise, name) * rng.standard_normal(m)
     return GeneratedCase(
