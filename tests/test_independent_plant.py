@@ -120,7 +120,8 @@ def test_matrix_command_refuses_an_unknown_plant(capsys: pytest.CaptureFixture[s
 
     assert main(["--plant", "bogus"]) == 2
     err = capsys.readouterr().err
-    assert "--plant 'bogus'" in err and "kernel, independent" in err
+    assert "--plant" in err and "'bogus'" in err and "independent" in err and "kernel" in err
+    assert err.count("\n") == 1
 
 
 def _dominant_hz(signal: np.ndarray, dt: float) -> float:
