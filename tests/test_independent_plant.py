@@ -118,7 +118,9 @@ def test_matrix_subset_on_the_independent_plant(
 def test_matrix_command_refuses_an_unknown_plant(capsys: pytest.CaptureFixture[str]) -> None:
     from plant_sim.diagnose.matrix import main
 
-    assert main(["--plant", "bogus"]) == 2
+    with pytest.raises(SystemExit) as exit_:
+        main(["--plant", "bogus"])
+    assert exit_.value.code == 2
     err = capsys.readouterr().err
     assert "--plant" in err and "'bogus'" in err and "independent" in err and "kernel" in err
     assert err.count("\n") == 1
