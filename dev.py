@@ -229,6 +229,56 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
                 wall,
             ),
         ),
+        *(_realtime_bench(rate_hz, realtime_s) for rate_hz in (1000, 2000)),
+        Bench(
+            "monitor",
+            ("plant_sim", "monitor-bench", "--counts", "100,1000", "--json", "{out}/m.json"),
+            "m.json",
+            (
+                Figure("fleet monitor, 100 recordings", "recordings_per_min.100", "recordings/min"),
+                Figure(
+                    "fleet monitor, 1,000 recordings", "recordings_per_min.1000", "recordings/min"
+                ),
+                Figure("one analysis of 25 s: peak RSS", "analysis_peak_rss_mb.25 s", "MB"),
+                Figure("one analysis of 600 s: peak RSS", "analysis_peak_rss_mb.600 s", "MB"),
+                wall,
+            ),
+        ),
+    )
+
+
+def _realtime_bench(rate_hz: int, seconds: float) -> Bench:
+    """The bridge alone at ``rate_hz`` with every real-time option (root: the simulated drive
+    runs as its own process in a private network namespace)."""
+    rt = f"{rate_hz} Hz, SCHED_FIFO, {seconds:g} s"
+    return Bench(
+        f"bridge-realtime-{rate_hz // 1000}k",
+        (
+            "bridge",
+            "bench",
+            "--skip-lockstep",
+            "--seconds",
+            f"{seconds:g}",
+            "--rate-hz",
+            str(rate_hz),
+            "--rt-priority",
+            "50",
+            "--cpu",
+            "1",
+            "--lock-memory",
+            "--freeze-gc",
+            "--json",
+            "{out}/bench.json",
+        ),
+        "bench.json",
+        (
+            Figure(f"{rt}: latency median", "realtime.latency_us_median", "µs"),
+            Figure(f"{rt}: latency p99", "realtime.latency_us_p99", "µs"),
+            Figure(f"{rt}: latency max", "realtime.latency_us_max", "µs"),
+            Figure(f"{rt}: skipped SYNCs", "realtime.skipped_syncs", "SYNCs"),
+            Figure(f"{rt}: cycles without all TPDOs", "realtime.missed_tpdo_cycles", "cycles"),
+            Figure(f"{rt}: CPU per cycle", "realtime.cpu_us_per_cycle", "µs"),
+        ),
     )
 
 

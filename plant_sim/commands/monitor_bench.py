@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import itertools
 import json
 import os
 import resource
@@ -158,6 +159,17 @@ def run(args: argparse.Namespace) -> int:
             progress.stage(f"{n} recordings: {elapsed:.1f} s, {per_min:.0f} recordings/min")
             shutil.rmtree(fleet)
         figures["runs"] = runs
+        # cost of one more recording between fleet sizes: the fixed cost of starting the
+        # Dask cluster and writing tables and figures cancels out
+        for before, after in itertools.pairwise(runs):
+            extra = after["recordings"] - before["recordings"]
+            after["marginal_ms_per_recording"] = round(
+                (after["seconds"] - before["seconds"]) / extra * 1000.0, 2
+            )
+        figures["recordings_per_min"] = {
+            str(r["recordings"]): r["recordings_per_min"] for r in runs
+        }
+        figures["ms_per_recording"] = {str(r["recordings"]): r["ms_per_recording"] for r in runs}
         figures["client_peak_rss_mb"] = round(
             resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1
         )
