@@ -102,7 +102,7 @@ def trends_figure(ranked: Sequence[AxisTrend], path: Path) -> Path:
             )
             ax.legend(loc="lower right", fontsize=7)
         growth = (
-            f"{t.growth_per_month * scale:+.1f} {unit}/month"
+            f"{round(t.growth_per_month * scale, 1) + 0.0:+.1f} {unit}/month"
             if math.isfinite(t.growth_per_month)
             else "no trend"
         )
