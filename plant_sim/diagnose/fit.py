@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -147,15 +147,6 @@ def axis_with(base: AxisConfig, values: Mapping[str, float]) -> AxisConfig:
         plain["disturbance.periodic_amplitude"] = math.hypot(c, s)
         plain["disturbance.periodic_phase"] = math.atan2(s, c)
     return plain_floats(base.with_values(plain))
-
-
-def periodic_pseudo(axis: AxisConfig) -> dict[str, float]:
-    """The pseudo-key values of an axis's periodic disturbance (empty if it has none)."""
-    amp = axis.disturbance.periodic_amplitude
-    if amp is None:
-        return {}
-    phase = axis.disturbance.periodic_phase or 0.0
-    return {PERIODIC_COS: amp * math.cos(phase), PERIODIC_SIN: amp * math.sin(phase)}
 
 
 #: Scaled residual beyond which the loss grows like |r| instead of r² (soft-L1): a residual
@@ -392,7 +383,3 @@ def restart(spec: FitSpec, values: Mapping[str, float]) -> FitSpec:
         for p in spec.parameters
     )
     return FitSpec(spec.base, params, (), spec.discrete, spec.options, 0)
-
-
-def keys_of(parameters: Sequence[Parameter]) -> tuple[str, ...]:
-    return tuple(p.key for p in parameters)
