@@ -50,6 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="axis map: axis file per machine/axis (docs/monitor.md)",
     )
     parser.add_argument(
+        "--drive-profile",
+        type=Path,
+        metavar="P.toml",
+        help="decode candump logs with this drive profile's scaling (config/drives/*.toml)",
+    )
+    parser.add_argument(
         "--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://HOST:8786"
     )
     parser.add_argument(
@@ -116,7 +122,11 @@ def run(args: argparse.Namespace) -> int:
         raise PlantSimError("no PATH given: name recordings or folders (or use --demo)")
     if args.axes is not None:
         axis_map = load_axis_map(args.axes)
-    found = discover(paths, axis_file=args.axis, axis_map=axis_map)
+    if args.drive_profile is not None and not args.drive_profile.is_file():
+        raise PlantSimError(f"--drive-profile {args.drive_profile}: no such file")
+    found = discover(
+        paths, axis_file=args.axis, axis_map=axis_map, drive_profile=args.drive_profile
+    )
     for p in found.missing_paths:
         print(f"monitor: {p}: no such file or folder (skipped)", file=sys.stderr)
     if not found.sources:

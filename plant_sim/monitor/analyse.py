@@ -21,6 +21,7 @@ from regulator.errors import RegulatorError
 
 from ..axis import AxisConfig, PositionFeedback, load_axis
 from ..errors import PlantSimError, RecordingError
+from .candump import layout_for
 from .episodes import DetectorSetup, Episode, EpisodeFinder, Verdict
 from .lost_motion import LostMotionEstimator
 from .readers import Chunk, open_chunks
@@ -123,7 +124,13 @@ def analyse(source: Source) -> RecordingResult:
 
 
 def _analyse(source: Source, axis: AxisConfig, base: RecordingResult) -> RecordingResult:
-    chunks = open_chunks(source.path, source.kind)
+    layout = None
+    if source.kind is RecordingKind.CANDUMP:
+        try:
+            layout = layout_for(axis.kind, source.drive_profile)
+        except (PlantSimError, ValueError, OSError) as exc:  # a profile that cannot be used
+            raise RecordingError(f"drive profile {source.drive_profile}: {exc}") from None
+    chunks = open_chunks(source.path, source.kind, layout)
     first = next(chunks, None)
     if first is None:
         raise RecordingError(f"{source.path}: holds no samples", path=str(source.path))

@@ -111,4 +111,3 @@ def confusion_markdown(matrix: dict[str, dict[str, int]]) -> str:
     rule = "|---" * (len(CLASSES) + 1) + "|"
     rows = [f"| {t} | " + " | ".join(str(matrix[t][p]) for p in CLASSES) + " |" for t in CLASSES]
     return "\n".join([head, rule, *rows])
-

@@ -24,11 +24,15 @@ import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import RecordingError
 from .sources import RecordingKind
+
+if TYPE_CHECKING:
+    from .candump import CandumpLayout
 
 #: Rows (trace) or SYNC cycles (log) per chunk.
 CHUNK_ROWS = 16384
@@ -64,24 +68,6 @@ class Chunk:
 
     def __len__(self) -> int:
         return int(self.time_s.size)
-
-
-@dataclass(frozen=True)
-class CandumpLayout:
-    """How the bus log encodes the signals (defaults: docs/canopen_layout.md).
-
-    motor_increments_per_rev: 6064h/606Ch/60FFh increments per motor revolution.
-    load_increments_per_unit: 60E4h:01 increments per load unit (nm: 1e9 per m; µrad: 1e6).
-    drive_id: the drive's node-ID, 0 = the node whose TPDO1 is seen most often.
-    """
-
-    motor_increments_per_rev: int = 1 << 20
-    load_increments_per_unit: float = 1e9
-    drive_id: int = 0
-
-    @property
-    def rad_per_increment(self) -> float:
-        return 2.0 * math.pi / self.motor_increments_per_rev
 
 
 def _check_time(t: np.ndarray, last_t: float, rows_before: int, path: Path) -> None:
@@ -129,7 +115,7 @@ def read_trace_chunks(path: Path) -> Iterator[Chunk]:
         )
     except (pa.ArrowInvalid, OSError, UnicodeDecodeError) as exc:
         raise RecordingError(
-            f"{path}: not a trace file ({_first_line(exc)})", path=str(path)
+            f"{path}: not a trace file ({first_line(exc)})", path=str(path)
         ) from None
     names = [n.strip().lstrip("\ufeff") for n in reader.schema.names]
     missing = [c for c in REQUIRED if c not in names]
@@ -183,7 +169,7 @@ def read_trace_chunks(path: Path) -> Iterator[Chunk]:
                 )
     except pa.ArrowInvalid as exc:
         raise RecordingError(
-            f"{path}: not a trace file after row {rows + 1} ({_first_line(exc)})", path=str(path)
+            f"{path}: not a trace file after row {rows + 1} ({first_line(exc)})", path=str(path)
         ) from None
     if rows < MIN_ROWS:
         raise RecordingError(
@@ -198,174 +184,26 @@ def _opt(cols: dict[str, np.ndarray], name: str, sl: slice) -> np.ndarray | None
     return np.nan_to_num(values[sl], nan=np.nan)
 
 
-def _first_line(exc: BaseException) -> str:
+def first_line(exc: BaseException) -> str:
     """First line of an error, without Arrow's parse-block row count (it depends on threads)."""
     text = str(exc).strip()
     return re.sub(r"Row #\d+: ", "", text.splitlines()[0]) if text else type(exc).__name__
 
 
-# --- candump logs ---------------------------------------------------------------------------
-SYNC = 0x080
-
-
-def _parse_line(line: str) -> tuple[float, int, bytes] | None:
-    """(epoch s, CAN-ID, data) of one ``candump -l`` line; None for a blank line."""
-    line = line.strip()
-    if not line:
-        return None
-    stamp, _iface, frame = line.split(" ", 2)
-    if not (stamp.startswith("(") and stamp.endswith(")")):
-        raise ValueError("no (timestamp)")
-    can_id, sep, data = frame.strip().partition("#")
-    if not sep:
-        raise ValueError("no ID#DATA")
-    if data.startswith("R"):
-        return float(stamp[1:-1]), int(can_id, 16), b""
-    return float(stamp[1:-1]), int(can_id, 16), bytes.fromhex(data)
-
-
-def _drive_id(path: Path, head: list[tuple[float, int, bytes]]) -> int:
-    counts: dict[int, int] = {}
-    for _, cid, _ in head:
-        if 0x181 <= cid <= 0x1FF:
-            counts[cid - 0x180] = counts.get(cid - 0x180, 0) + 1
-    if not counts:
-        raise RecordingError(
-            f"{path}: candump log without the drive's TPDO1 (0x181..0x1FF, 6064h + 60E4h:01): "
-            "not a log of the bridge's bus",
-            path=str(path),
-        )
-    return max(counts, key=lambda k: counts[k])
-
-
-class _CandumpDecoder:
-    """Turns frames into one sample per SYNC (the values the drive sampled at that SYNC)."""
-
-    def __init__(self, path: Path, layout: CandumpLayout, drive_id: int) -> None:
-        self.path = path
-        self.layout = layout
-        self.tpdo1, self.tpdo2, self.rpdo1 = 0x180 + drive_id, 0x280 + drive_id, 0x200 + drive_id
-        self.sdo_tx = 0x580 + drive_id
-        self.rated_torque_nm: float | None = None
-        self.rows: list[tuple[float, float, float, float, float, float]] = []
-        self._sync_t = math.nan
-        self._p1: tuple[int, int] | None = None
-        self._p2: tuple[int, int] | None = None
-        self._setpoint = math.nan
-        self.syncs = 0
-
-    def feed(self, t: float, cid: int, data: bytes) -> None:
-        if cid == SYNC:
-            self._close_cycle()
-            self._sync_t = t
-            self.syncs += 1
-        elif cid == self.tpdo1 and len(data) >= 8:
-            self._p1 = (
-                int.from_bytes(data[0:4], "little", signed=True),
-                int.from_bytes(data[4:8], "little", signed=True),
-            )
-        elif cid == self.tpdo2 and len(data) >= 8:
-            self._p2 = (
-                int.from_bytes(data[2:4], "little", signed=True),
-                int.from_bytes(data[4:8], "little", signed=True),
-            )
-        elif cid == self.rpdo1 and len(data) >= 6:
-            self._setpoint = int.from_bytes(data[2:6], "little", signed=True)
-        elif (
-            cid == self.sdo_tx
-            and len(data) == 8
-            and data[0] & 0xE2 == 0x42  # expedited upload response (CiA 301)
-            and data[1:4] == b"\x76\x60\x00"  # 6076h:00 motor rated torque, mN·m
-        ):
-            self.rated_torque_nm = int.from_bytes(data[4:8], "little") / 1000.0
-
-    def _close_cycle(self) -> None:
-        if self._p1 is not None and self._p2 is not None and math.isfinite(self._sync_t):
-            rad = self.layout.rad_per_increment
-            self.rows.append(
-                (
-                    self._sync_t,
-                    self._p1[0] * rad,
-                    self._p1[1] / self.layout.load_increments_per_unit,
-                    float(self._p2[0]),
-                    self._p2[1] * rad,
-                    self._setpoint * rad,
-                )
-            )
-        self._p1 = self._p2 = None
-
-    def take(self, final: bool = False) -> Chunk | None:
-        if final:
-            self._close_cycle()
-        if not self.rows:
-            return None
-        a = np.asarray(self.rows, dtype=np.float64)
-        self.rows.clear()
-        torque = a[:, 3] * (self.rated_torque_nm / 1000.0) if self.rated_torque_nm else a[:, 3]
-        return Chunk(
-            time_s=a[:, 0],
-            motor_position_rad=a[:, 1],
-            motor_torque=torque,
-            load_position=a[:, 2],
-            speed_setpoint_rad_s=a[:, 5],
-            motor_speed_rad_s=a[:, 4],
-            torque_unit="N·m" if self.rated_torque_nm else "‰",
-        )
-
-
-def read_candump_chunks(path: Path, layout: CandumpLayout = CandumpLayout()) -> Iterator[Chunk]:
-    """Chunks of a candump log of the bridge's bus (see the module docstring)."""
-    try:
-        handle = path.open("r", encoding="ascii", errors="strict")
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read it ({exc.strerror})", path=str(path)) from None
-    with handle:
-        head: list[tuple[float, int, bytes]] = []
-        lineno = 0
-        try:
-            for line in handle:
-                lineno += 1
-                parsed = _parse_line(line)
-                if parsed is not None:
-                    head.append(parsed)
-                if len(head) >= 2000:
-                    break
-            drive = layout.drive_id or _drive_id(path, head)
-            decoder = _CandumpDecoder(path, layout, drive)
-            for frame in head:
-                decoder.feed(*frame)
-            for line in handle:
-                lineno += 1
-                parsed = _parse_line(line)
-                if parsed is None:
-                    continue
-                decoder.feed(*parsed)
-                if len(decoder.rows) >= CHUNK_ROWS:
-                    chunk = decoder.take()
-                    if chunk is not None:
-                        yield _checked(chunk, path)
-        except (ValueError, UnicodeDecodeError) as exc:
-            # a decode error happens while the line is read, before it is counted
-            lineno += isinstance(exc, UnicodeDecodeError)
-            raise RecordingError(
-                f"{path}: line {lineno}: not a candump -l log line ({_first_line(exc)})",
-                path=str(path),
-            ) from None
-        chunk = decoder.take(final=True)
-        if decoder.syncs == 0:
-            raise RecordingError(f"{path}: candump log without SYNC frames (0x080)", path=str(path))
-        if chunk is not None:
-            yield _checked(chunk, path)
-
-
-def _checked(chunk: Chunk, path: Path) -> Chunk:
+def checked(chunk: Chunk, path: Path) -> Chunk:
+    """``chunk`` if its time stamps increase, else RecordingError (a log's SYNC times)."""
     if not np.all(np.diff(chunk.time_s) > 0):
         raise RecordingError(f"{path}: SYNC time stamps do not increase", path=str(path))
     return chunk
 
 
-def open_chunks(path: Path, kind: RecordingKind) -> Iterator[Chunk]:
-    """The chunk stream of a recording of either kind."""
+def open_chunks(
+    path: Path, kind: RecordingKind, layout: CandumpLayout | None = None
+) -> Iterator[Chunk]:
+    """The chunk stream of a recording of either kind (``layout``: how a log is scaled)."""
     if kind is RecordingKind.TRACE:
         return read_trace_chunks(path)
-    return read_candump_chunks(path)
+    from .candump import CandumpLayout as _Layout
+    from .candump import read_candump_chunks
+
+    return read_candump_chunks(path, layout or _Layout())

@@ -53,6 +53,8 @@ class Source:
     date:      when it was recorded (naive UTC), None when the path names no date
     axis_file: the axis file that gives k_v, k_r and the position feedback; None when neither
                ``--axis`` nor the map names one (the recording is then reported, not analysed)
+    drive_profile: the drive profile whose scaling a candump log is decoded with (None: the
+               contract's scaling, docs/canopen_layout.md)
     """
 
     path: Path
@@ -61,6 +63,7 @@ class Source:
     axis: str
     date: dt.datetime | None
     axis_file: Path | None
+    drive_profile: Path | None = None
 
     @property
     def axis_id(self) -> str:
@@ -96,6 +99,7 @@ class AxisEntry:
     axis: str
     axis_file: Path | None
     globs: tuple[str, ...]
+    drive_profile: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -158,15 +162,23 @@ def load_axis_map(path: Path) -> AxisMap:
         globs = table.get("paths", [])
         if not isinstance(globs, list) or not all(isinstance(g, str) for g in globs):
             raise FleetMapError(f"{where}: 'paths' must be a list of glob strings")
-        extra = set(table) - {"machine", "axis", "axis_file", "paths"}
+        extra = set(table) - {"machine", "axis", "axis_file", "paths", "drive_profile"}
         if extra:
             raise FleetMapError(
-                f"{where}: unknown key(s) {sorted(extra)}; allowed: machine, axis, axis_file, paths"
+                f"{where}: unknown key(s) {sorted(extra)}; allowed: machine, axis, axis_file, "
+                "paths, drive_profile"
             )
+        profile = (
+            folder / _text(table, "drive_profile", where) if "drive_profile" in table else None
+        )
         axis_file = folder / _text(table, "axis_file", where) if "axis_file" in table else None
         entries.append(
             AxisEntry(
-                _text(table, "machine", where), _text(table, "axis", where), axis_file, tuple(globs)
+                _text(table, "machine", where),
+                _text(table, "axis", where),
+                axis_file,
+                tuple(globs),
+                profile,
             )
         )
     if not entries and default_file is None:
@@ -194,7 +206,10 @@ class Discovery:
 
 
 def discover(
-    paths: Sequence[Path], axis_file: Path | None = None, axis_map: AxisMap | None = None
+    paths: Sequence[Path],
+    axis_file: Path | None = None,
+    axis_map: AxisMap | None = None,
+    drive_profile: Path | None = None,
 ) -> Discovery:
     """Find every recording under ``paths`` (recursively) and name its machine, axis, date.
 
@@ -232,5 +247,6 @@ def discover(
         if chosen is None and axis_map is not None:
             chosen = entry.axis_file if entry and entry.axis_file else axis_map.default_axis_file
         date = date_from_path(rel[2:] if len(rel) >= 3 else rel)
-        sources.append(Source(f, kind, machine, axis, date, chosen))
+        profile = drive_profile or (entry.drive_profile if entry is not None else None)
+        sources.append(Source(f, kind, machine, axis, date, chosen, profile))
     return Discovery(tuple(sources), ignored, missing)
