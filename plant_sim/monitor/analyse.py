@@ -185,8 +185,3 @@ def _analyse(source: Source, axis: AxisConfig, base: RecordingResult) -> Recordi
         torque_unit=torque_unit,
         episodes=episodes,
     )
-
-
-def kind_of(name: str) -> RecordingKind:
-    """The :class:`RecordingKind` whose value is ``name``."""
-    return RecordingKind(name)

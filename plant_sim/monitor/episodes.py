@@ -37,7 +37,7 @@ from regulator.analysis import condition_monitoring, vibration_band_hz
 from regulator.errors import RegulatorError
 
 from ..errors import RecordingError
-from .readers import Chunk
+from .readers import Chunk, backward_difference
 
 _step = numba.njit(cache=True, nogil=True, inline="always")(_core.detector_step)
 
@@ -164,17 +164,14 @@ class EpisodeFinder:
         """(u, load speed) of a chunk, rad/s at the motor and load units/s."""
         s = self.setup
         kr = s.transmission_ratio
+        if s.feedback_on_load and c.load_position is not None:
+            fb = c.load_position
+        else:
+            fb = c.motor_position_rad / kr
         if c.position_reference is not None and np.all(np.isfinite(c.position_reference)):
             x = c.position_reference
-            prev = x[0] if not math.isfinite(self._last_ref) else self._last_ref
-            speed = np.diff(np.concatenate(([prev], x))) / s.dt_s  # backward difference
-            if not math.isfinite(self._last_ref) and x.size > 1:
-                speed[0] = speed[1]
+            speed = backward_difference(x, self._last_ref, s.dt_s)
             self._last_ref = float(x[-1])
-            if s.feedback_on_load and c.load_position is not None:
-                fb = c.load_position
-            else:
-                fb = c.motor_position_rad / kr
             omega_c = kr * s.kv_per_s * (x - fb)  # eq. 7
             return kr * speed - omega_c, speed
         w = c.speed_setpoint_rad_s
@@ -185,16 +182,8 @@ class EpisodeFinder:
             )
         # eq. 7 read backwards: the reference the position controller saw, exact while the
         # regulator passes omega_c through (lambda = 1)
-        fb = (
-            c.load_position
-            if (s.feedback_on_load and c.load_position is not None)
-            else (c.motor_position_rad / kr)
-        )
         x = fb + w / (kr * s.kv_per_s)
-        prev = x[0] if not math.isfinite(self._last_ref) else self._last_ref
-        speed = np.diff(np.concatenate(([prev], x))) / s.dt_s
-        if not math.isfinite(self._last_ref) and x.size > 1:
-            speed[0] = speed[1]
+        speed = backward_difference(x, self._last_ref, s.dt_s)
         self._last_ref = float(x[-1])
         return kr * speed - w, speed
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .readers import Chunk
+from .readers import Chunk, backward_difference
 
 
 @dataclass(frozen=True)
@@ -118,10 +118,7 @@ class LostMotionEstimator:
             x = c.position_reference
         else:
             x = c.motor_position_rad / self.kr
-        prev = self._last_ref if math.isfinite(self._last_ref) else x[0]
-        v = np.diff(np.concatenate(([prev], x))) / self.dt_s
-        if not math.isfinite(self._last_ref) and v.size > 1:
-            v[0] = v[1]
+        v = backward_difference(x, self._last_ref, self.dt_s)
         self._last_ref = float(x[-1])
         pv = self._last_speed if math.isfinite(self._last_speed) else v[0]
         a = np.diff(np.concatenate(([pv], v))) / self.dt_s

@@ -184,6 +184,16 @@ def _opt(cols: dict[str, np.ndarray], name: str, sl: slice) -> np.ndarray | None
     return np.nan_to_num(values[sl], nan=np.nan)
 
 
+def backward_difference(x: np.ndarray, previous: float, dt_s: float) -> np.ndarray:
+    """``(x[k] − x[k−1]) / dt_s`` of a chunk whose predecessor ended at ``previous`` (nan at
+    the start of a recording: the first value then repeats the second)."""
+    start = math.isfinite(previous)
+    v = np.diff(np.concatenate(([previous if start else x[0]], x))) / dt_s
+    if not start and v.size > 1:
+        v[0] = v[1]
+    return v
+
+
 def first_line(exc: BaseException) -> str:
     """First line of an error, without Arrow's parse-block row count (it depends on threads)."""
     text = str(exc).strip()
