@@ -35,11 +35,10 @@ from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary import datatypes as dt
 
 from plant_sim.drive.od import DEFAULT_EDS_PATH as DRIVE_EDS
-from virtual_bus import BusConfig, open_bus
+from virtual_bus import BusConfig, cli, open_bus
 
 from .. import od as bridge_od
-from ..errors import BridgeError, CommissionInputError, NodeAccessError
-from ..layout import check_node_id
+from ..errors import CommissionInputError, NodeAccessError
 from .access import (
     SIGNATURES,
     SdoAccess,
@@ -64,13 +63,6 @@ WRITABLE = {"rw", "rwr", "rww", "wo"}
 STORE_COMMANDS = {0x1010, 0x1011}
 
 
-def _node_id(text: str) -> int:
-    try:
-        return check_node_id("node-ID", int(text))
-    except (ValueError, BridgeError):
-        raise argparse.ArgumentTypeError(f"{text!r}: a CANopen node-ID is 1..127") from None
-
-
 def _timeout(text: str) -> float:
     try:
         value = float(text)
@@ -85,7 +77,7 @@ def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
     parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
     parser.add_argument("--bitrate", type=int, default=500_000, help="bit/s (DCF Baudrate)")
-    parser.add_argument("--node-id", type=_node_id, required=True, help="the node (1..127)")
+    parser.add_argument("--node-id", type=cli.node_id, required=True, help="the node (1..127)")
     parser.add_argument(
         "--eds", type=Path, help="EDS (or DCF) of the node; default: identified by 1000h/1018h"
     )

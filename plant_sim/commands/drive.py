@@ -21,7 +21,7 @@ import tomllib
 from pathlib import Path
 from types import FrameType
 
-from virtual_bus import BusConfig, VirtualBusError, open_bus
+from virtual_bus import BusConfig, VirtualBusError, cli, open_bus
 from virtual_bus.config import CIA301_BITRATES, DEFAULT_BITRATE
 
 from ..axis import load_axis
@@ -38,16 +38,6 @@ HELP = (
 CLOCKS = {"realtime": TimeMode.REAL_TIME, "lockstep": TimeMode.LOCKSTEP}
 
 
-def _node_id(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if not 1 <= value <= 127:
-        raise argparse.ArgumentTypeError(f"{text!r}: a CANopen node-ID is 1..127")
-    return value
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--interface",
@@ -61,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(udp_multicast; default 239.74.163.2)",
     )
     parser.add_argument(
-        "--node-id", type=_node_id, default=2, help="the drive's node-ID, 1..127 (default 2)"
+        "--node-id", type=cli.node_id, default=2, help="the drive's node-ID, 1..127 (default 2)"
     )
     parser.add_argument("--axis", type=Path, required=True, metavar="AXIS.toml", help="axis file")
     parser.add_argument(
