@@ -25,19 +25,13 @@ from pathlib import Path
 import can
 import numpy as np
 
-from plant_sim.trace import Trace, TraceWriter
+from plant_sim.trace import RECORDED_COLUMNS, Trace, TraceWriter
 from virtual_bus import BusConfig, Interface
 
 from .cycle import CycleController
 
 BASE_COLUMNS = (
-    "time",
-    "position_reference",
-    "speed_setpoint",
-    "motor_position",
-    "motor_speed",
-    "load_position",
-    "motor_torque",
+    *RECORDED_COLUMNS,
     "beta",
     "lambda",
 )

@@ -17,18 +17,12 @@ from . import kernel as K
 from .axis import AxisConfig
 from .errors import ScenarioError
 from .model import KernelOptions, build_params, initial_state
-from .trace import Trace
+from .trace import RECORDED_COLUMNS, Trace
 
 #: Columns of a simulated closed-loop trace, in the order of the kernel's ``O_*`` row layout:
 #: the trace-file columns, then β, λ, and the detector's inputs ω_s and ω_c (rad/s, motor).
 SIM_COLUMNS = (
-    "time",
-    "position_reference",
-    "speed_setpoint",
-    "motor_position",
-    "motor_speed",
-    "load_position",
-    "motor_torque",
+    *RECORDED_COLUMNS,
     "disturbance",
     "beta",
     "lambda",

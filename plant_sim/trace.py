@@ -47,6 +47,8 @@ COLUMN_UNITS = {
 
 #: Conventional column order for writing (others follow in their own order).
 COLUMN_ORDER = tuple(COLUMN_UNITS)
+#: The spec's measured columns, in that order: what a recorder on a real axis writes.
+RECORDED_COLUMNS = COLUMN_ORDER[:7]
 
 
 @dataclass(frozen=True)

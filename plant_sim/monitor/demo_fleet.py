@@ -32,21 +32,13 @@ import numpy as np
 
 from ..axis import AxisConfig, load_axis
 from ..simulate import References, simulate
-from ..trace import Trace
+from ..trace import RECORDED_COLUMNS, Trace
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
 CONDITIONS = ("clean", "growing", "vibrating", "corrupt")
 GROWTH_UM_PER_MONTH = 10.0
-TRACE_COLUMNS = (
-    "time",
-    "position_reference",
-    "speed_setpoint",
-    "motor_position",
-    "motor_speed",
-    "load_position",
-    "motor_torque",
-)
+TRACE_COLUMNS = RECORDED_COLUMNS
 DURATION_S = 25.0
 START = dt.datetime(2026, 5, 1, 7, 30)
 
