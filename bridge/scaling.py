@@ -98,4 +98,3 @@ class Scaling:
     def velocity_units_per_rad_s(self) -> float:
         """606Ch / 60FFh units per motor rad/s."""
         return self.velocity_units_per_rev_s / (2.0 * math.pi)
-
