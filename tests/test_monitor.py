@@ -230,6 +230,19 @@ def test_bad_trace_files_give_one_line(tmp_path, content, message):
     assert not r.ok and message in r.error and "\n" not in r.error
 
 
+def test_non_finite_optional_samples_are_missing_measurements(tmp_path):
+    path = tmp_path / "gaps.csv"
+    rows = [f"{i * 0.001},{i * 0.1},0,{i * 1e-6}" for i in range(150)]
+    rows[10] = "0.010,1.0,0,inf"
+    rows[11] = "0.011,1.1,0,-inf"
+    rows[12] = "0.012,1.2,0,"
+    path.write_text("time,motor_position,motor_torque,load_position\n" + "\n".join(rows) + "\n")
+    (chunk,) = readers.read_trace_chunks(path)
+    assert chunk.load_position is not None
+    assert np.isnan(chunk.load_position[10:13]).all()
+    assert np.isfinite(np.delete(chunk.load_position, [10, 11, 12])).all()
+
+
 def test_bad_log_gives_one_line(tmp_path):
     path = tmp_path / "bad.log"
     path.write_text("(1.0) can0 123#00\n(1.1) can0 080#\n")

@@ -178,10 +178,13 @@ def read_trace_chunks(path: Path) -> Iterator[Chunk]:
 
 
 def _opt(cols: dict[str, np.ndarray], name: str, sl: slice) -> np.ndarray | None:
+    """An optional column's slice; an empty cell, NaN or ±inf there is a sample without that
+    measurement (nan), never a number (a required column refuses them instead)."""
     values = cols.get(name)
     if values is None:
         return None
-    return np.nan_to_num(values[sl], nan=np.nan)
+    part = values[sl]
+    return np.where(np.isfinite(part), part, np.nan)
 
 
 def backward_difference(x: np.ndarray, previous: float, dt_s: float) -> np.ndarray:
