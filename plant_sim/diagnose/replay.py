@@ -238,8 +238,10 @@ def _check_soft_loop(
     """A travel ratio off by more than RATIO_TOLERANCE is a unit or transmission-ratio error
     for a stiff position loop, but a soft loop under load (a hobby servo lifting a pendulum)
     lags its reference by design. Accept it when the axis file's own closed loop, replayed
-    like the recording, travels a ratio of the same sign within SOFT_LOOP_FACTOR of it
-    (the nominal model may well be off; a unit mistake is a larger factor); else refuse."""
+    like the recording, lags too (its ratio is off k_r by more than RATIO_TOLERANCE as well)
+    and travels a ratio within SOFT_LOOP_FACTOR of the recorded one (the nominal model may
+    well be off; a unit mistake is a larger factor); else refuse. A model that follows its
+    reference stiffly never excuses a recording that does not."""
     simulated = replay(axis, inp, columns=("motor_position", "load_position"))
     ref = inp.recorded["position_reference"]
     for name, ratio, expected, unit in off_ratio:
@@ -247,6 +249,7 @@ def _check_soft_loop(
         if (
             model is None
             or not np.isfinite(model)
+            or abs(model / expected - 1.0) <= RATIO_TOLERANCE
             or not 1.0 / SOFT_LOOP_FACTOR <= ratio / model <= SOFT_LOOP_FACTOR
         ):
             raise _fail_ratio(name, ratio, expected, unit, model)
