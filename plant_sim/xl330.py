@@ -82,7 +82,7 @@ from .axis import (
     dump_axis,
 )
 from .errors import PlantSimError
-from .trace import MIN_ROWS, Trace
+from .trace import MIN_ROWS, Trace, first_non_increasing
 
 #: Encoder counts per output revolution (bam/xl330/actuator.py ENCODER_COUNTS_PER_REV).
 COUNTS_PER_REV = 4096
@@ -274,9 +274,8 @@ def read_xl330_log(path: str | Path) -> Xl330Recording:
             key="load",
             sample=i,
         )
-    steps = np.diff(values["timestamp"])
-    if (steps <= 0).any():
-        i = int(np.argmax(steps <= 0)) + 1
+    i = first_non_increasing(values["timestamp"])
+    if i is not None:
         raise Xl330FileError(
             f"{path}: entry {i}, timestamp {values['timestamp'][i]!r} does not increase "
             f"(previous {values['timestamp'][i - 1]!r})",
