@@ -99,9 +99,9 @@ G = 9.80665
 #: |duty| at or above this counts as saturated (the PWM register's last count).
 SATURATED_DUTY = 884.0 / PWM_LIMIT
 
-#: BAM's published model "m1" (Coulomb + viscous friction) of this XL330, identified on these
-#: recordings: params/xl330/m1.json at commit af2260462471ff45ac18af159b1327ea51d8db15
-#: ("new identification values", the commit that adds the recordings). Units: kt N m/A (=
+#: BAM's published model "m1" (Coulomb + viscous friction) of this XL330: params/xl330/m1.json
+#: at commit af2260462471ff45ac18af159b1327ea51d8db15 ("new identification values", the very
+#: commit that adds these recordings, so presumably identified on them). Units: kt N m/A (=
 #: V s/rad) at the output shaft, R ohm, armature kg m^2 (reflected rotor inertia),
 #: friction_base N m (Coulomb), friction_viscous N m s/rad, q_offset rad (encoder zero).
 BAM_M1 = {
