@@ -187,7 +187,16 @@ def _number(path: Path, value: object, key: str, sample: int | None = None) -> f
     return float(value)
 
 
-def _header(path: Path, doc: Mapping[str, object]) -> dict[str, object]:
+@dataclass(frozen=True)
+class _Header:
+    mass_kg: float
+    length_m: float
+    vin_v: float
+    kp_register: int
+    trajectory: str
+
+
+def _header(path: Path, doc: Mapping[str, object]) -> _Header:
     missing = [k for k in HEADER_KEYS if k not in doc]
     if missing:
         raise Xl330FileError(
@@ -201,12 +210,12 @@ def _header(path: Path, doc: Mapping[str, object]) -> dict[str, object]:
             "(its constants are the XL330's)",
             key="motor",
         )
-    header: dict[str, object] = {}
+    positive = {}
     for key in ("mass", "length", "vin"):
         value = _number(path, doc[key], key)
         if not value > 0:
             raise Xl330FileError(f"{path}: key {key!r} = {value!r}: expected > 0", key=key)
-        header[key] = value
+        positive[key] = value
     kp = doc["kp"]
     if isinstance(kp, bool) or not isinstance(kp, int) or not 0 < kp <= 16383:
         raise Xl330FileError(
@@ -214,9 +223,13 @@ def _header(path: Path, doc: Mapping[str, object]) -> dict[str, object]:
             "1..16383",
             key="kp",
         )
-    header["kp"] = kp
-    header["trajectory"] = str(doc.get("trajectory", "unknown"))
-    return header
+    return _Header(
+        mass_kg=positive["mass"],
+        length_m=positive["length"],
+        vin_v=positive["vin"],
+        kp_register=kp,
+        trajectory=str(doc.get("trajectory", "unknown")),
+    )
 
 
 def read_xl330_log(path: str | Path) -> Xl330Recording:
@@ -252,7 +265,7 @@ def read_xl330_log(path: str | Path) -> Xl330Recording:
         if entry.get("torque_enable", True) is not True:
             raise TorqueOffError(
                 f"{path}: entry {i} (t = {values['timestamp'][i]:.4g} s) has the torque off "
-                f"(trajectory {header['trajectory']!r}); closed-loop replay needs the servo "
+                f"(trajectory {header.trajectory!r}); closed-loop replay needs the servo "
                 "enabled throughout",
                 key="torque_enable",
                 sample=i,
@@ -284,11 +297,11 @@ def read_xl330_log(path: str | Path) -> Xl330Recording:
         )
     return Xl330Recording(
         source=path,
-        mass_kg=float(header["mass"]),  # type: ignore[arg-type]
-        length_m=float(header["length"]),  # type: ignore[arg-type]
-        kp_register=int(header["kp"]),  # type: ignore[call-overload]
-        vin_nominal_v=float(header["vin"]),  # type: ignore[arg-type]
-        trajectory=str(header["trajectory"]),
+        mass_kg=header.mass_kg,
+        length_m=header.length_m,
+        kp_register=header.kp_register,
+        vin_nominal_v=header.vin_v,
+        trajectory=header.trajectory,
         time_s=values["timestamp"],
         goal_rad=values["goal_position"],
         position_rad=values["position"],
