@@ -24,6 +24,7 @@ COMMANDS = (
     "identify",
     "diagnose",
     "emps",
+    "xl330",
     "force_error",
     "matrix",
     "drive",

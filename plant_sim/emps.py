@@ -46,7 +46,7 @@ import numpy as np
 import scipy.io
 
 from .errors import PlantSimError
-from .trace import MIN_ROWS, Trace
+from .trace import MIN_ROWS, Trace, first_non_increasing
 
 #: The shared data directory of the project (``/work/shared/data/emps``).
 DATA_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "emps"
@@ -177,9 +177,8 @@ def read_emps_mat(path: str | Path) -> EmpsRecording:
         raise EmpsFileError(
             f"{path}: {n} samples, at least {MIN_ROWS + DROPPED_SAMPLES} needed", variable="t"
         )
-    steps = np.diff(signals["t"])
-    if (steps <= 0).any():
-        i = int(np.argmax(steps <= 0)) + 1
+    i = first_non_increasing(signals["t"])
+    if i is not None:
         raise EmpsFileError(
             f"{path}: variable 't', sample {i}: {float(signals['t'][i])!r} does not increase "
             f"(previous {float(signals['t'][i - 1])!r})",

@@ -175,6 +175,13 @@ def _plausibility(trace: Trace, path: Path) -> None:
         )
 
 
+def first_non_increasing(values: np.ndarray) -> int | None:
+    """Index of the first sample that is not greater than its predecessor, None if the
+    sequence strictly increases (shared by the trace reader and the recording importers)."""
+    steps = np.diff(values)
+    return int(np.argmax(steps <= 0)) + 1 if (steps <= 0).any() else None
+
+
 def read_trace(path: str | Path, required: Sequence[str] = REQUIRED_COLUMNS) -> Trace:
     """Read and check a trace file; raises TraceFileError naming the column or row."""
     path = Path(path)
@@ -239,9 +246,9 @@ def read_trace(path: str | Path, required: Sequence[str] = REQUIRED_COLUMNS) -> 
                 row=line,
             )
     time = data[:, header.index("time")]
-    steps = np.diff(time)
-    if (steps <= 0).any():
-        line = int(np.argmax(steps <= 0)) + 3
+    bad = first_non_increasing(time)
+    if bad is not None:
+        line = bad + 2
         raise TraceFileError(
             f"{path}: line {line}, column 'time': {float(time[line - 2])!r} does not increase "
             f"(previous {float(time[line - 3])!r}); time must be strictly increasing",

@@ -8,7 +8,15 @@ import warnings
 import numpy as np
 import pytest
 
-from plant_sim.axis import AxisConfig, AxisKind, Control, Friction, Mechanics, PositionFeedback
+from plant_sim.axis import (
+    AxisConfig,
+    AxisKind,
+    Control,
+    Disturbance,
+    Friction,
+    Mechanics,
+    PositionFeedback,
+)
 from plant_sim.diagnose.errors import DiagnosisInputError
 from plant_sim.diagnose.metrics import fit_percent
 from plant_sim.diagnose.replay import prepare_replay, replay, simulate_like
@@ -160,3 +168,66 @@ def test_speed_in_rpm_warns() -> None:
         prepare_replay(rpm, axis)
     msgs = [str(w.message) for w in caught if issubclass(w.category, TraceWarning)]
     assert any("rpm" in m for m in msgs)
+
+
+# --- a soft loop that lags its reference by design (a hobby servo lifting a pendulum) ----------
+def pendulum_axis(kv: float = 40.0, gravity_nm: float | None = 0.5) -> AxisConfig:
+    """A P/P servo at transmission ratio 1 whose position loop (kv*ksp = 0.8 N m/rad) is
+    barely stiffer than the gravity on its pendulum (0.5 N m/rad near the bottom): it travels
+    0.66 rad per rad of its reference."""
+    return AxisConfig(
+        kind=AxisKind.ROTARY,
+        transmission_ratio=1.0,
+        mechanics=Mechanics(motor_inertia=0.0016, load_mass=0.005),
+        friction=Friction(viscous=0.01),
+        disturbance=Disturbance(
+            periodic_amplitude=gravity_nm,
+            periodic_period=None if gravity_nm is None else 2 * math.pi,
+        ),
+        control=Control(
+            kv=kv,
+            ksp=0.02,
+            position_feedback=PositionFeedback.MOTOR,
+            position_cycle=0.001,
+            speed_cycle=0.001,
+        ),
+    )
+
+
+def pendulum_recording(axis: AxisConfig) -> Trace:
+    n = 4000
+    t = np.arange(n) * axis.control.position_cycle
+    refs = References.from_position(np.sin(2 * np.pi * 0.5 * t), axis.control.position_cycle)
+    sim = simulate(axis, refs)
+    cols = ("time", "position_reference", "motor_position", "motor_speed", "motor_torque")
+    return Trace({c: sim[c] for c in cols})
+
+
+def test_a_soft_loop_lagging_like_its_axis_file_is_accepted() -> None:
+    """The recording travels far less than k_r (gravity wins over the loop); an axis file whose
+    own replay lags as well, even with a gravity 30 % off, is accepted and replayed."""
+    rec = pendulum_recording(pendulum_axis())
+    slope = np.polyfit(rec["position_reference"], rec["motor_position"], 1)[0]
+    assert slope < 0.8  # the premise: outside the stiff-loop tolerance
+    off = pendulum_axis(gravity_nm=0.65)
+    out = replay(off, prepare_replay(rec, off))
+    assert np.all(np.isfinite(out["motor_position"]))
+
+
+def test_a_stiff_axis_file_does_not_excuse_a_lagging_recording() -> None:
+    """The same recording against an axis file that follows its reference (no gravity, a
+    stiff loop) is refused: the model does not lag, so the lag must be units or k_r."""
+    rec = pendulum_recording(pendulum_axis())
+    stiff = pendulum_axis(kv=400.0, gravity_nm=None)
+    with pytest.raises(DiagnosisInputError, match="replayed travels"):
+        prepare_replay(rec, stiff)
+
+
+def test_a_soft_loop_recorded_in_degrees_is_refused() -> None:
+    axis = pendulum_axis()
+    rec = pendulum_recording(axis)
+    degrees = rec.with_columns({"motor_position": np.degrees(rec["motor_position"])})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TraceWarning)  # motor_speed no longer matches: expected
+        with pytest.raises(DiagnosisInputError, match="motor_position"):
+            prepare_replay(degrees, axis)
