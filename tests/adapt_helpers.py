@@ -39,6 +39,8 @@ def require_eds(path: Path) -> Path:
     if not path.is_file():
         pytest.skip(f"vendor EDS {path.name} not found in {VENDOR_EDS} (shared/vendor_eds)")
     return path
+
+
 ENCODER_EDS = Path(__file__).resolve().parent / "data" / "cia406_encoder.eds"
 SETUP = DriveSetup(sdo_timeout_s=2.0, state_timeout_s=2.0)
 
