@@ -22,11 +22,12 @@ from pathlib import Path
 from plant_sim.axis import AxisConfig
 from plant_sim.scenarios import SectionX
 from regulator import RegulatorConfig
+from virtual_bus.errors import RealTimeRefused
+from virtual_bus.realtime import RealTimeOptions
 
 from .bench_realtime import DrivePlacement, can_run_process_drive, realtime_run
 from .cycle import BridgeState
 from .params import BridgeParams
-from .realtime import RealTimeOptions, RealTimeRefused
 from .sim import play_references, simulated_axis
 
 

@@ -39,6 +39,7 @@ from plant_sim.axis import AxisConfig, dump_axis
 from regulator import RegulatorConfig
 from virtual_bus import BusConfig, open_bus
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
+from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 from .cycle import BridgeState
 from .errors import BridgeError
@@ -46,7 +47,6 @@ from .interpolator import Move
 from .loopstats import Timing, summary
 from .node import Bridge, BridgeConfig
 from .params import BridgeParams
-from .realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 from .timing import RealTimePacer
 
 #: Wall time the drive process gets to boot (loading its compiled physics), s.
@@ -104,12 +104,29 @@ def _proc_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def drive_options(rt: RealTimeOptions, drive_cpu: int | None) -> list[str]:
+    """The real-time options of the drive process: the bridge's, one priority below the loop
+    (the drive answers the SYNC the loop sends), on ``drive_cpu`` instead of the loop's CPU."""
+    argv = []
+    if rt.rt_priority is not None:
+        argv += ["--rt-priority", str(max(1, rt.rt_priority - 1))]
+    if drive_cpu is not None:
+        argv += ["--cpu", str(drive_cpu)]
+    if rt.lock_memory:
+        argv.append("--lock-memory")
+    if rt.freeze_gc:
+        argv.append("--freeze-gc")
+    if rt.busy_poll:
+        argv.append("--busy-poll")
+    return argv
+
+
 def _drive_command(
     ns: NetworkNamespace, axis_path: Path, rt: RealTimeOptions, drive_cpu: int | None
 ) -> list[str]:
-    """``python -m plant_sim drive`` on udp_multicast inside ``ns``; with ``rt_priority`` the
-    drive runs under SCHED_FIFO one below the loop (it answers the SYNC), on ``drive_cpu``."""
-    cmd = ns.command(
+    """``python -m plant_sim drive`` on udp_multicast inside ``ns`` with
+    :func:`drive_options`."""
+    return ns.command(
         [
             sys.executable,
             "-m",
@@ -121,13 +138,9 @@ def _drive_command(
             UDP_GROUP,
             "--axis",
             str(axis_path),
+            *drive_options(rt, drive_cpu),
         ]
     )
-    if rt.rt_priority is not None:
-        cmd = ["chrt", "-f", str(max(1, rt.rt_priority - 1)), *cmd]
-    if drive_cpu is not None:
-        cmd = ["taskset", "-c", str(drive_cpu), *cmd]
-    return cmd
 
 
 def _wait_for_boot(bus: can.BusABC, drive_id: int, proc: subprocess.Popen[bytes]) -> None:

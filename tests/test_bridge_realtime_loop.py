@@ -23,9 +23,10 @@ from bridge.cycle import BridgeState, StopReason
 from bridge.layout import RPDO1_STRUCT, SYNC_COB_ID, TPDO1_STRUCT, TPDO2_STRUCT
 from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
-from bridge.realtime import GcBetweenCycles, RealTimeOptions, RealTimeRefused, apply_realtime
 from bridge.timing import RealTimePacer
 from plant_sim.axis import load_axis
+from virtual_bus.errors import RealTimeRefused
+from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 AXIS = load_axis("config/paper_axis.toml")
 CYCLE_S = AXIS.control.position_cycle
