@@ -98,6 +98,26 @@ def _entered(ns: NetworkNamespace) -> Iterator[None]:
         os.close(own)
 
 
+def steal_s(stat_text: str) -> dict[str, float]:
+    """Time the hypervisor ran something else while each CPU had work (the ``steal`` column
+    of ``/proc/stat``, in USER_HZ ticks), s per CPU ("cpu0", ...). On a virtual machine a
+    thread can lose the CPU for milliseconds this way, whatever its priority."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for line in stat_text.splitlines():
+        fields = line.split()
+        if fields and fields[0].startswith("cpu") and fields[0] != "cpu" and len(fields) > 8:
+            out[fields[0]] = int(fields[8]) / tick
+    return out
+
+
+def _host_steal() -> dict[str, float]:
+    try:
+        return steal_s(Path("/proc/stat").read_text())
+    except OSError:
+        return {}
+
+
 def _proc_cpu_s(pid: int) -> float:
     """User + system CPU time of process ``pid`` so far (from /proc), s."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
@@ -231,12 +251,17 @@ def _measure(bridge: Bridge, cycles: int, rt: RealTimeOptions) -> dict[str, floa
     for line in applied:
         print(f"bench: {line}")
     floor = host_floor()
+    steal0 = _host_steal()
     wall0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
     n = bridge.run(until=lambda b: b.cycle_index >= cycles)
     wall = time.perf_counter() - wall0
     cpu, thread = time.process_time() - cpu0, time.thread_time() - thread0
+    steal1 = _host_steal()
     return {
         **floor,
+        "host_steal_ms": {
+            name: round(1e3 * (steal1[name] - steal0.get(name, 0.0)), 1) for name in steal1
+        },
         "seconds": wall,
         "cycles": n,
         "cpu_us_per_cycle": 1e6 * thread / max(1, n),
@@ -311,6 +336,7 @@ def realtime_run(
         if drive_pid is not None:
             drive_cpu_s = _proc_cpu_s(drive_pid) - drive_cpu0
             result["drive_cpu_percent_of_one_core"] = 100.0 * drive_cpu_s / result["seconds"]  # type: ignore[operator]
+            result["drive_cpu_us_per_cycle"] = 1e6 * drive_cpu_s / max(1, cycles)
         result["spin_us"] = bridge.pacer.spin_s * 1e6
         result.update(summary(bridge.timing, params.cycle_s))
         result["missed_tpdo_cycles"] = bridge.counters.missed_cycles
