@@ -319,6 +319,18 @@ def test_sync_watch_follows_one_skipped_slot_then_gives_up() -> None:
     assert watch.wait_s(0.0115, 1.0) == 0.0
 
 
+def test_sync_watch_holds_after_a_sync_until_the_next_frame_or_the_hold_ends() -> None:
+    watch = SyncWatch(cycle_s=1e-3, lead_s=100e-6, hold_s=250e-6)
+    watch.synced(1.0)
+    assert watch.wait_s(1.0001, 0.2) == 0.0  # polling for the set point
+    watch.received()  # it came: block until the next window
+    assert watch.wait_s(1.00011, 0.2) == pytest.approx(1.0009 - 1.00011)
+    watch.synced(1.001)
+    assert watch.wait_s(1.00124, 0.2) == 0.0
+    # no frame within the hold: block until the next window
+    assert watch.wait_s(1.00126, 0.2) == pytest.approx(1.0019 - 1.00126)
+
+
 def test_the_poll_lead_is_checked_against_the_cycle() -> None:
     axis = load_axis(AXIS_FILE)  # 1 ms position cycle (the paper's)
     assert DriveProcessConfig(axis).poll_lead_s == pytest.approx(150e-6)
