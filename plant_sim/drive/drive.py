@@ -121,6 +121,7 @@ class SimulatedDrive:
         self._sync_count = 0
         self._sync_cob_id = 0
         self._rpdo_seen = False
+        self._tx_messages: dict[int, can.Message] = {}
 
         od = O.load_drive_od(self.config.eds_path, node_id)
         self._table = O.ObjectTable(od)
@@ -459,7 +460,23 @@ class SimulatedDrive:
             )
 
     def _send(self, can_id: int, data: bytes) -> None:
-        self._network.send_message(can_id, data)
+        """Send one frame the drive produces (TPDOs, a SYNC-time heartbeat): canopen's
+        ``Network.send_message`` (same lock, same check of the notifier), with one
+        :class:`can.Message` per COB-ID built once and rewritten, not one per frame."""
+        network = self._network
+        bus = network.bus
+        if bus is None:
+            raise DriveStateError(f"drive {self.node_id}: not connected to a CAN bus")
+        with network.send_lock:
+            msg = self._tx_messages.get(can_id)
+            if msg is None:
+                msg = can.Message(arbitration_id=can_id, is_extended_id=can_id > 0x7FF, data=data)
+                self._tx_messages[can_id] = msg
+            else:
+                msg.data[:] = data
+                msg.dlc = len(data)
+            bus.send(msg)
+        network.check()
 
     def _send_emcy(self, code: int, register: int, data: bytes) -> None:
         if self._started and self._nmt.state in (NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL):
