@@ -331,6 +331,45 @@ def test_sync_watch_holds_after_a_sync_until_the_next_frame_or_the_hold_ends() -
     assert watch.wait_s(1.00126, 0.2) == pytest.approx(1.0019 - 1.00126)
 
 
+class _Clock:
+    t = 10.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_the_next_window_is_dated_from_the_syncs_arrival_not_from_a_late_wake_up() -> None:
+    """The loop with injected clocks: a SYNC that waited 300 µs in the socket (its timestamp
+    says so) puts the next poll window at arrival + 1 ms - 150 µs, not at wake-up + ..."""
+    from plant_sim.drive.process import LoopCounts, _loop
+
+    clock, stop, asked = _Clock(), threading.Event(), []
+    sync = can.Message(arbitration_id=0x80, data=b"", timestamp=1000.0 - 300e-6)
+
+    class Drive:  # what the loop reads of the drive
+        node_id, sync_count = 2, 0
+
+        def check(self) -> None:
+            pass
+
+    drive = Drive()
+
+    def handle(msg: can.Message) -> None:
+        drive.sync_count += 1
+
+    def recv(timeout: float | None) -> can.Message | None:
+        asked.append(timeout)
+        if len(asked) == 1:
+            return sync
+        stop.set()
+        return None
+
+    config = DriveProcessConfig(load_axis(AXIS_FILE), realtime=RealTimeOptions(busy_poll=True))
+    _loop(drive, recv, handle, stop, config, None, clock, lambda: 1000.0, LoopCounts())  # type: ignore[arg-type]
+    assert asked[0] == config.check_interval_s  # nothing known yet: block
+    assert asked[1] == pytest.approx(10.0 - 300e-6 + 1e-3 - 150e-6 - 10.0)
+
+
 def test_the_poll_lead_is_checked_against_the_cycle() -> None:
     axis = load_axis(AXIS_FILE)  # 1 ms position cycle (the paper's)
     assert DriveProcessConfig(axis).poll_lead_s == pytest.approx(150e-6)

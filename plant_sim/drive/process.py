@@ -199,9 +199,11 @@ def serve(
     *,
     ready: Callable[[SimulatedDrive], None] | None = None,
     wall: Callable[[], float] = time.monotonic,
+    epoch: Callable[[], float] = time.time,
 ) -> ServeResult:
     """Serve the drive on ``bus`` until ``stop`` is set (see the module docstring), from the
-    calling thread; ``wall``: the loop's clock (s).
+    calling thread; ``wall``: the loop's clock (s); ``epoch``: the clock of the frames'
+    timestamps (s since the epoch; python-can's convention).
 
     ready(drive): called once the boot-up message is out and the real-time options are
     applied. A bus callback that raised is raised here (after the drive has left the bus);
@@ -220,7 +222,7 @@ def serve(
             if gc_control is not None:
                 gc_control.start()
             try:
-                _loop(drive, bus.recv, handle, stop, config, gc_control, wall, counts)
+                _loop(drive, bus.recv, handle, stop, config, gc_control, wall, epoch, counts)
             finally:
                 if gc_control is not None:
                     gc_control.stop()
@@ -244,6 +246,7 @@ def _loop(
     config: DriveProcessConfig,
     gc_control: GcBetweenCycles | None,
     wall: Callable[[], float],
+    epoch: Callable[[], float],
     counts: LoopCounts,
 ) -> None:
     """Receive and handle frames until ``stop``; see :func:`serve`. A receive error (a
@@ -268,10 +271,14 @@ def _loop(
         if msg is None:
             continue
         received = wall()
+        # the frame's own timestamp (epoch s: the kernel's receive time on udp_multicast and
+        # socketcan) says how long it waited for this thread; a plausible age dates the SYNC
+        # back to its arrival, so a late wake-up does not shift the next poll window
+        age = epoch() - msg.timestamp
         handle(msg)
         if drive.sync_count != syncs:  # a SYNC: answered, the physics stepped
             syncs = drive.sync_count
-            watch.synced(received)
+            watch.synced(received - age if 0.0 <= age < cycle_s else received)
             if gc_control is not None and gc_control.due():
                 gc_control.collect()
         else:
