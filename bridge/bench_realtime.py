@@ -127,18 +127,8 @@ def _proc_cpu_s(pid: int) -> float:
 def drive_options(rt: RealTimeOptions, drive_cpu: int | None) -> list[str]:
     """The real-time options of the drive process: the bridge's, one priority below the loop
     (the drive answers the SYNC the loop sends), on ``drive_cpu`` instead of the loop's CPU."""
-    argv = []
-    if rt.rt_priority is not None:
-        argv += ["--rt-priority", str(max(1, rt.rt_priority - 1))]
-    if drive_cpu is not None:
-        argv += ["--cpu", str(drive_cpu)]
-    if rt.lock_memory:
-        argv.append("--lock-memory")
-    if rt.freeze_gc:
-        argv.append("--freeze-gc")
-    if rt.busy_poll:
-        argv.append("--busy-poll")
-    return argv
+    priority = None if rt.rt_priority is None else max(1, rt.rt_priority - 1)
+    return dataclasses.replace(rt, rt_priority=priority, cpu=drive_cpu).argv()
 
 
 def _drive_command(

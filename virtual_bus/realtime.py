@@ -90,8 +90,22 @@ class RealTimeOptions:
         if self.freeze_gc:
             parts.append("gc frozen, collected between cycles")
         if self.busy_poll:
-            parts.append("bus polled during the TPDO window")
+            parts.append("bus polled where a frame is due")
         return ", ".join(parts) or "none (ordinary scheduling)"
+
+    def argv(self) -> list[str]:
+        """These options as the command-line arguments of :func:`add_realtime_options`
+        (:func:`realtime_options` reads them back to equal options): for a process started
+        with the same options."""
+        flags = (
+            ("--lock-memory", self.lock_memory),
+            ("--freeze-gc", self.freeze_gc),
+            ("--busy-poll", self.busy_poll),
+        )
+        numbers = (("--rt-priority", self.rt_priority), ("--cpu", self.cpu))
+        return [a for name, n in numbers if n is not None for a in (name, str(n))] + [
+            name for name, on in flags if on
+        ]
 
 
 def _set_fifo(priority: int) -> None:
