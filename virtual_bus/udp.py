@@ -48,7 +48,11 @@ _ANCILLARY_SIZE = socket.CMSG_SPACE(_TIMESPEC.size)
 class LoopbackUdpBus(UdpMulticastBus):
     """``UdpMulticastBus`` on ``channel`` (default :data:`UDP_GROUP`) that refuses to open
     outside a private network namespace (:func:`private_namespace_problem`) and never
-    returns its own frames. Received frames carry ``channel`` = the group."""
+    returns its own frames. Received frames carry ``channel`` = the group.
+
+    One thread receives at a time (the receive buffer is the bus's; the bridge and the drive
+    hand the bus from their start-up thread to their loop, never share it); any thread may
+    send."""
 
     def __init__(self, channel: str = UDP_GROUP, *, fd: bool = False) -> None:
         problem = private_namespace_problem()
