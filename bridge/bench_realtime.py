@@ -7,14 +7,18 @@ forth. Where the simulated drive runs (:class:`DrivePlacement`):
   ``udp_multicast`` bus inside a private network namespace created for the run and removed
   after it (:mod:`virtual_bus.netns`; never on the host's interfaces): ``python -m plant_sim
   drive`` in the namespace, the bench's own thread moved into it (setns) for its bus. The
-  figures are the bridge's: its loop does not share an interpreter with the drive's physics.
+  drive process gets the loop's real-time options (:func:`drive_options`: one SCHED_FIFO
+  priority lower, on ``drive_cpu``). The figures are the bridge's: its loop does not share
+  an interpreter with the drive's physics.
 * ``THREAD``: the drive in the bridge's process on python-can's virtual bus (what ran before;
   the drive's Python work and threads compete with the loop for the GIL).
 
 Figures (:func:`bridge.loopstats.summary`): SYNC -> set point latency (it includes the drive's
 answer), the bridge's own share (both TPDOs in -> RPDO sent), SYNC lateness against its slot
 and its jitter, histograms, skipped SYNCs, overruns, cycles without all TPDOs, CPU time of the
-loop's thread per cycle, CPU use of bridge and drive processes.
+loop's thread and of the drive process per cycle, CPU use of both processes, and what the
+host took: the gaps of a clock-reading thread before the run (:func:`host_floor`) and the
+hypervisor's steal time per CPU during it (:func:`steal_s`).
 """
 
 from __future__ import annotations
