@@ -16,8 +16,7 @@ harness that runs the drive in a subprocess or thread of its own):
    of blocking in a window of ``sync_poll_lead_s`` either side of the instant the next SYNC
    is due, and after the SYNC until the master's set point is in (:class:`SyncWatch`): a
    blocked thread wakes 50-60 µs after its frame arrived on a small VM, a polling one at
-   once. With ``freeze_gc`` the collector runs only right after a
-   SYNC has been answered;
+   once. With ``freeze_gc`` the collector runs only right after a SYNC has been answered;
 4. on ``stop`` (SIGINT/SIGTERM in the command) the drive leaves the bus (heartbeat stopped);
    the bus stays the caller's to shut down.
 
