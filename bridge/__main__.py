@@ -16,11 +16,10 @@ import can
 
 from plant_sim.errors import PlantSimError
 from virtual_bus import VirtualBusError, cli
-from virtual_bus.errors import BusUnavailableError
+from virtual_bus.errors import BusUnavailableError, RealTimeRefused
 
 from .commands.common import PROG
 from .errors import BridgeError, DriveSetupError
-from .realtime import RealTimeRefused
 
 COMMANDS = ("run", "demo", "busload", "bench", "eds", "config", "probe")
 DESCRIPTION = (

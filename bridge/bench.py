@@ -22,11 +22,12 @@ from pathlib import Path
 from plant_sim.axis import AxisConfig
 from plant_sim.scenarios import SectionX
 from regulator import RegulatorConfig
+from virtual_bus.errors import RealTimeRefused
+from virtual_bus.realtime import RealTimeOptions
 
 from .bench_realtime import DrivePlacement, can_run_process_drive, realtime_run
 from .cycle import BridgeState
 from .params import BridgeParams
-from .realtime import RealTimeOptions, RealTimeRefused
 from .sim import play_references, simulated_axis
 
 
@@ -136,12 +137,18 @@ def run_bench(
             f"µs, max {r['sync_late_us_max']:.0f} µs; skipped SYNCs {r['skipped_syncs']} "
             f"({r['overruns']} overruns), cycles without all TPDOs {r['missed_tpdo_cycles']}; "
             f"loop CPU {r['cpu_us_per_cycle']:.0f} µs/cycle"
+            + (
+                f", drive process CPU {r['drive_cpu_us_per_cycle']:.0f} µs/cycle"
+                if "drive_cpu_us_per_cycle" in r
+                else ""
+            )
         )
         print(f"latency histogram (µs): {r['latency_histogram_us']}")
         print(
             f"host alone (a clock-reading thread, same options, {r['host_gaps_over_50us']} gaps "
             f"> 50 µs in 2 s, longest {r['host_gap_us_max']:.0f} µs): the floor under the "
-            "loop's maximum"
+            "loop's maximum; CPU time the hypervisor stole during the run (ms): "
+            f"{r['host_steal_ms']}"
         )
     if json_path is not None:
         json_path.write_text(json.dumps(results, indent=2) + "\n")

@@ -7,14 +7,18 @@ forth. Where the simulated drive runs (:class:`DrivePlacement`):
   ``udp_multicast`` bus inside a private network namespace created for the run and removed
   after it (:mod:`virtual_bus.netns`; never on the host's interfaces): ``python -m plant_sim
   drive`` in the namespace, the bench's own thread moved into it (setns) for its bus. The
-  figures are the bridge's: its loop does not share an interpreter with the drive's physics.
+  drive process gets the loop's real-time options (:func:`drive_options`: one SCHED_FIFO
+  priority lower, on ``drive_cpu``). The figures are the bridge's: its loop does not share
+  an interpreter with the drive's physics.
 * ``THREAD``: the drive in the bridge's process on python-can's virtual bus (what ran before;
   the drive's Python work and threads compete with the loop for the GIL).
 
 Figures (:func:`bridge.loopstats.summary`): SYNC -> set point latency (it includes the drive's
 answer), the bridge's own share (both TPDOs in -> RPDO sent), SYNC lateness against its slot
 and its jitter, histograms, skipped SYNCs, overruns, cycles without all TPDOs, CPU time of the
-loop's thread per cycle, CPU use of bridge and drive processes.
+loop's thread and of the drive process per cycle, CPU use of both processes, and what the
+host took: the gaps of a clock-reading thread before the run (:func:`host_floor`) and the
+hypervisor's steal time per CPU during it (:func:`steal_s`).
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from plant_sim.axis import AxisConfig, dump_axis
 from regulator import RegulatorConfig
 from virtual_bus import BusConfig, open_bus
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
+from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 from .cycle import BridgeState
 from .errors import BridgeError
@@ -46,7 +51,6 @@ from .interpolator import Move
 from .loopstats import Timing, summary
 from .node import Bridge, BridgeConfig
 from .params import BridgeParams
-from .realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 from .timing import RealTimePacer
 
 #: Wall time the drive process gets to boot (loading its compiled physics), s.
@@ -98,18 +102,45 @@ def _entered(ns: NetworkNamespace) -> Iterator[None]:
         os.close(own)
 
 
+def steal_s(stat_text: str) -> dict[str, float]:
+    """Time the hypervisor ran something else while each CPU had work (the ``steal`` column
+    of ``/proc/stat``, in USER_HZ ticks), s per CPU ("cpu0", ...). On a virtual machine a
+    thread can lose the CPU for milliseconds this way, whatever its priority."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for line in stat_text.splitlines():
+        fields = line.split()
+        if fields and fields[0].startswith("cpu") and fields[0] != "cpu" and len(fields) > 8:
+            out[fields[0]] = int(fields[8]) / tick
+    return out
+
+
+def _host_steal() -> dict[str, float]:
+    try:
+        return steal_s(Path("/proc/stat").read_text())
+    except OSError:
+        return {}
+
+
 def _proc_cpu_s(pid: int) -> float:
     """User + system CPU time of process ``pid`` so far (from /proc), s."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def drive_options(rt: RealTimeOptions, drive_cpu: int | None) -> list[str]:
+    """The real-time options of the drive process: the bridge's, one priority below the loop
+    (the drive answers the SYNC the loop sends), on ``drive_cpu`` instead of the loop's CPU."""
+    priority = None if rt.rt_priority is None else max(1, rt.rt_priority - 1)
+    return dataclasses.replace(rt, rt_priority=priority, cpu=drive_cpu).argv()
+
+
 def _drive_command(
     ns: NetworkNamespace, axis_path: Path, rt: RealTimeOptions, drive_cpu: int | None
 ) -> list[str]:
-    """``python -m plant_sim drive`` on udp_multicast inside ``ns``; with ``rt_priority`` the
-    drive runs under SCHED_FIFO one below the loop (it answers the SYNC), on ``drive_cpu``."""
-    cmd = ns.command(
+    """``python -m plant_sim drive`` on udp_multicast inside ``ns`` with
+    :func:`drive_options`."""
+    return ns.command(
         [
             sys.executable,
             "-m",
@@ -121,13 +152,9 @@ def _drive_command(
             UDP_GROUP,
             "--axis",
             str(axis_path),
+            *drive_options(rt, drive_cpu),
         ]
     )
-    if rt.rt_priority is not None:
-        cmd = ["chrt", "-f", str(max(1, rt.rt_priority - 1)), *cmd]
-    if drive_cpu is not None:
-        cmd = ["taskset", "-c", str(drive_cpu), *cmd]
-    return cmd
 
 
 def _wait_for_boot(bus: can.BusABC, drive_id: int, proc: subprocess.Popen[bytes]) -> None:
@@ -218,12 +245,17 @@ def _measure(bridge: Bridge, cycles: int, rt: RealTimeOptions) -> dict[str, floa
     for line in applied:
         print(f"bench: {line}")
     floor = host_floor()
+    steal0 = _host_steal()
     wall0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
     n = bridge.run(until=lambda b: b.cycle_index >= cycles)
     wall = time.perf_counter() - wall0
     cpu, thread = time.process_time() - cpu0, time.thread_time() - thread0
+    steal1 = _host_steal()
     return {
         **floor,
+        "host_steal_ms": {
+            name: round(1e3 * (steal1[name] - steal0.get(name, 0.0)), 1) for name in steal1
+        },
         "seconds": wall,
         "cycles": n,
         "cpu_us_per_cycle": 1e6 * thread / max(1, n),
@@ -298,6 +330,7 @@ def realtime_run(
         if drive_pid is not None:
             drive_cpu_s = _proc_cpu_s(drive_pid) - drive_cpu0
             result["drive_cpu_percent_of_one_core"] = 100.0 * drive_cpu_s / result["seconds"]  # type: ignore[operator]
+            result["drive_cpu_us_per_cycle"] = 1e6 * drive_cpu_s / max(1, cycles)
         result["spin_us"] = bridge.pacer.spin_s * 1e6
         result.update(summary(bridge.timing, params.cycle_s))
         result["missed_tpdo_cycles"] = bridge.counters.missed_cycles

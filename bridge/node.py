@@ -48,6 +48,7 @@ from virtual_bus.contract import (
     sdo_rx_cob_id,
 )
 from virtual_bus.frame_guard import FrameFault, FrameGuard
+from virtual_bus.realtime import GcBetweenCycles
 from virtual_bus.sdo_server import CheckedSdoServer
 
 from .cycle import CW_RUNNING, BridgeState, CycleController, StopReason
@@ -59,7 +60,6 @@ from .objects import ObjectServer, PdoCounters
 from .od import DEFAULT_DRIVE_ID, DEFAULT_EDS_PATH, DEFAULT_NODE_ID, load_od
 from .params import BridgeParams
 from .profile import DriveProfile
-from .realtime import GcBetweenCycles
 from .recorder import BusLog, TraceRecorder
 from .scaling import Scaling
 from .store import ParameterStore

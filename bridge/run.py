@@ -20,6 +20,7 @@ import can
 from plant_sim.axis import AxisConfig
 from regulator import RegulatorConfig
 from virtual_bus import BusConfig, bus_load, open_bus
+from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 from .busload import layout_load
 from .cycle import BridgeState, Command
@@ -29,7 +30,6 @@ from .layout import CycleLayout
 from .node import DEFAULT_OVERRUN_LIMIT, Bridge, BridgeConfig
 from .objects import params_with_store
 from .params import BridgeParams
-from .realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 from .recorder import BusLog, TraceRecorder, log_channel
 from .scaling import LOAD_INCREMENTS_PER_UNIT
 from .store import ParameterStore

@@ -12,6 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from virtual_bus import cli
+from virtual_bus.errors import RealTimeRefused
 
 from .errors import PlantSimError
 
@@ -43,7 +44,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         DESCRIPTION,
         cli.load_commands("plant_sim", COMMANDS),
         argv,
-        failures=(cli.Failure((PlantSimError, OSError)),),
+        failures=(
+            cli.Failure((RealTimeRefused,), cli.EXIT_FAILURE, "refused"),
+            cli.Failure((PlantSimError, OSError)),
+        ),
     )
 
 

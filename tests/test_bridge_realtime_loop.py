@@ -23,9 +23,10 @@ from bridge.cycle import BridgeState, StopReason
 from bridge.layout import RPDO1_STRUCT, SYNC_COB_ID, TPDO1_STRUCT, TPDO2_STRUCT
 from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
-from bridge.realtime import GcBetweenCycles, RealTimeOptions, RealTimeRefused, apply_realtime
 from bridge.timing import RealTimePacer
 from plant_sim.axis import load_axis
+from virtual_bus.errors import RealTimeRefused
+from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 AXIS = load_axis("config/paper_axis.toml")
 CYCLE_S = AXIS.control.position_cycle
@@ -424,3 +425,37 @@ def test_a_late_first_answer_does_not_knock_the_drive_out_of_operation_enabled(
         fsm.controlword_written(cw, quick_stop_stays=False, fault_cleared=lambda: True)
         assert fsm.state is cia402.State402.OPERATION_ENABLED, (k, hex(cw))
     assert c.state is BridgeState.RUNNING
+
+
+def test_the_drive_process_gets_the_loops_real_time_options_one_priority_lower() -> None:
+    """bench: the drive process runs with the bridge's options, read back by the drive
+    command's own parser (plant_sim drive), on its own CPU, one SCHED_FIFO priority lower."""
+    import argparse
+
+    from bridge.bench_realtime import drive_options
+    from virtual_bus.realtime import add_realtime_options, realtime_options
+
+    rt = RealTimeOptions(rt_priority=50, cpu=1, lock_memory=True, freeze_gc=True, busy_poll=True)
+    parser = argparse.ArgumentParser()
+    add_realtime_options(parser)
+    got = realtime_options(parser.parse_args(drive_options(rt, drive_cpu=0)))
+    assert got == RealTimeOptions(
+        rt_priority=49, cpu=0, lock_memory=True, freeze_gc=True, busy_poll=True
+    )
+    assert drive_options(RealTimeOptions(rt_priority=1), None) == ["--rt-priority", "1"]
+    assert drive_options(RealTimeOptions(), None) == []
+
+
+def test_steal_time_is_read_per_cpu_from_proc_stat() -> None:
+    import os
+
+    from bridge.bench_realtime import steal_s
+
+    tick = os.sysconf("SC_CLK_TCK")
+    text = (
+        "cpu  10 0 5 100 1 0 2 300 0 0\n"
+        "cpu0 5 0 2 50 0 0 1 100 0 0\n"
+        "cpu1 5 0 3 50 1 0 1 200 0 0\n"
+        "intr 12345\n"
+    )
+    assert steal_s(text) == {"cpu0": 100 / tick, "cpu1": 200 / tick}

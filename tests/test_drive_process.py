@@ -14,14 +14,17 @@ from pathlib import Path
 import can
 import canopen
 import pytest
+from can.interfaces.virtual import VirtualBus
 
 from plant_sim.__main__ import main as plant_sim_main
 from plant_sim.axis import load_axis
 from plant_sim.drive import State402
+from plant_sim.drive.errors import DriveConfigError
 from plant_sim.drive.node import NmtState
-from plant_sim.drive.process import DriveProcessConfig, serve
+from plant_sim.drive.process import DriveProcessConfig, ServeResult, SyncWatch, serve
 from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
+from virtual_bus.realtime import RealTimeOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 AXIS_FILE = ROOT / "config" / "paper_axis.toml"
@@ -257,3 +260,166 @@ try:
 finally:
     network.disconnect()
 """
+
+
+# --- the one-thread loop: real-time options, SYNC poll window, receive errors ---------------
+RT_ARGS = [*DRIVE, "--interface", "virtual", "--channel", "x"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "fragment"),
+    [
+        ([*RT_ARGS, "--rt-priority", "0"], "SCHED_FIFO priority is 1..99"),
+        ([*RT_ARGS, "--rt-priority", "top"], "not an integer"),
+        ([*RT_ARGS, "--cpu", "-2"], "CPU number is >= 0"),
+    ],
+)
+def test_bad_real_time_arguments_one_line_exit_2(
+    argv: list[str], fragment: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert fragment in _one_line_exit_2(argv, capsys)
+
+
+def test_a_cpu_the_drive_may_not_use_is_refused_in_one_line_exit_1(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    import os
+
+    cpu = max(os.sched_getaffinity(0)) + 64
+    assert plant_sim_main([*RT_ARGS, "--cpu", str(cpu)]) == 1
+    err = capsys.readouterr().err
+    assert f"--cpu {cpu}" in err and "refused" in err and err.count("\n") == 1
+
+
+def test_sync_watch_polls_only_around_the_due_sync() -> None:
+    """Injected instants (s): 1 ms cycle, 0.15 ms lead. Blocks until the window opens,
+    polls inside it, never blocks longer than asked."""
+    watch = SyncWatch(cycle_s=1e-3, lead_s=150e-6)
+    assert watch.wait_s(now=5.0, longest_s=0.2) == 0.2  # no SYNC yet: block
+    watch.synced(10.0)
+    assert watch.wait_s(10.0001, 0.2) == pytest.approx(1e-3 - 150e-6 - 0.0001)
+    assert watch.wait_s(10.0001, 0.0002) == 0.0002
+    assert watch.wait_s(10.00085, 0.2) == 0.0  # the window opens at 10.00085
+    assert watch.wait_s(10.00114, 0.2) == 0.0  # ... and closes at 10.00115
+    watch.synced(10.00102)  # the SYNC came: the next window is one cycle on
+    assert watch.wait_s(10.0011, 0.2) == pytest.approx(10.00187 - 10.0011)
+
+
+def test_sync_watch_follows_one_skipped_slot_then_gives_up() -> None:
+    watch = SyncWatch(cycle_s=1e-3, lead_s=100e-6)
+    watch.synced(0.0)
+    # past the first window: the producer skipped a slot, the next is due at 2 ms
+    assert watch.wait_s(0.0012, 1.0) == pytest.approx(0.0019 - 0.0012)
+    assert watch.wait_s(0.00195, 1.0) == 0.0
+    # the second window passed without a SYNC either: no more polling until one comes
+    assert watch.wait_s(0.0022, 1.0) == 1.0
+    assert watch.due_s is None
+    assert watch.wait_s(0.0029, 1.0) == 1.0
+    watch.synced(0.0105)
+    assert watch.wait_s(0.0115, 1.0) == 0.0
+
+
+def test_sync_watch_holds_after_a_sync_until_the_next_frame_or_the_hold_ends() -> None:
+    watch = SyncWatch(cycle_s=1e-3, lead_s=100e-6, hold_s=250e-6)
+    watch.synced(1.0)
+    assert watch.wait_s(1.0001, 0.2) == 0.0  # polling for the set point
+    watch.received()  # it came: block until the next window
+    assert watch.wait_s(1.00011, 0.2) == pytest.approx(1.0009 - 1.00011)
+    watch.synced(1.001)
+    assert watch.wait_s(1.00124, 0.2) == 0.0
+    # no frame within the hold: block until the next window
+    assert watch.wait_s(1.00126, 0.2) == pytest.approx(1.0019 - 1.00126)
+
+
+class _Clock:
+    t = 10.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_the_next_window_is_dated_from_the_syncs_arrival_not_from_a_late_wake_up() -> None:
+    """The loop with injected clocks: a SYNC that waited 300 µs in the socket (its timestamp
+    says so) puts the next poll window at arrival + 1 ms - 150 µs, not at wake-up + ..."""
+    from plant_sim.drive.process import LoopCounts, _loop
+
+    clock, stop, asked = _Clock(), threading.Event(), []
+    sync = can.Message(arbitration_id=0x80, data=b"", timestamp=1000.0 - 300e-6)
+
+    class Drive:  # what the loop reads of the drive
+        node_id, sync_count = 2, 0
+
+        def check(self) -> None:
+            pass
+
+    drive = Drive()
+
+    def handle(msg: can.Message) -> None:
+        drive.sync_count += 1
+
+    def recv(timeout: float | None) -> can.Message | None:
+        asked.append(timeout)
+        if len(asked) == 1:
+            return sync
+        stop.set()
+        return None
+
+    config = DriveProcessConfig(load_axis(AXIS_FILE), realtime=RealTimeOptions(busy_poll=True))
+    _loop(drive, recv, handle, stop, config, None, clock, lambda: 1000.0, LoopCounts())  # type: ignore[arg-type]
+    assert asked[0] == config.check_interval_s  # nothing known yet: block
+    assert asked[1] == pytest.approx(10.0 - 300e-6 + 1e-3 - 150e-6 - 10.0)
+
+
+def test_the_poll_lead_is_checked_against_the_cycle() -> None:
+    axis = load_axis(AXIS_FILE)  # 1 ms position cycle (the paper's)
+    assert DriveProcessConfig(axis).poll_lead_s == pytest.approx(150e-6)
+    fast = axis.with_values({"control.position_cycle": 0.0005})
+    assert DriveProcessConfig(fast).poll_lead_s == pytest.approx(100e-6)
+    with pytest.raises(DriveConfigError, match="sync_poll_lead_s"):
+        DriveProcessConfig(axis, sync_poll_lead_s=0.0006)
+
+
+class _FlakyBus(VirtualBus):
+    """python-can's virtual bus whose first receive in the thread named "serve" fails as a
+    datagram that is no frame does on udp_multicast (can.CanOperationError)."""
+
+    failed = 0
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self.failed == 0 and threading.current_thread().name == "serve":
+            self.failed = 1
+            raise can.CanOperationError("could not unpack received message")
+        return super()._recv_internal(timeout)
+
+
+def test_served_with_busy_poll_answers_canopen_and_counts_a_bad_datagram() -> None:
+    """serve() with --busy-poll (the window logic polls, blocks outside it) answers python
+    canopen's own master; a receive that fails is counted and the loop goes on."""
+    channel = f"flaky-{uuid.uuid4().hex[:10]}"
+    master = can.Bus(interface="virtual", channel=channel)
+    drive_bus = _FlakyBus(channel=channel)
+    stop = threading.Event()
+    results: list[object] = []
+    config = DriveProcessConfig(
+        load_axis(AXIS_FILE), realtime=RealTimeOptions(busy_poll=True, freeze_gc=True)
+    )
+
+    def body() -> None:
+        try:
+            results.append(serve(config, drive_bus, stop))
+        except BaseException as exc:
+            results.append(exc)
+
+    thread = threading.Thread(target=body, name="serve")
+    thread.start()
+    try:
+        _wait_for(master, 0x702, BOOT_TIMEOUT_S)
+        got = _read_with_canopen(master)
+    finally:
+        stop.set()
+        thread.join(10.0)
+        drive_bus.shutdown()
+        master.shutdown()
+    assert got["tpdo1_position"] == 0 and got["syncs"] == 1
+    assert len(results) == 1 and isinstance(results[0], ServeResult), results
+    assert results[0].receive_errors == 1 and "1 datagrams ignored" in results[0].summary()

@@ -25,6 +25,20 @@ class BusLoadError(BusConfigError):
     """An argument of the bus-load computation is out of its allowed range."""
 
 
+class RealTimeConfigError(VirtualBusError, ValueError):
+    """A real-time option (:class:`virtual_bus.realtime.RealTimeOptions`) is out of range."""
+
+
+class RealTimeRefused(VirtualBusError, OSError):
+    """The OS does not allow a real-time setting; ``setting`` names it, ``errno`` is the OS
+    error number (or None)."""
+
+    def __init__(self, message: str, *, setting: str, errno: int | None = None) -> None:
+        super().__init__(message)
+        self.setting = setting
+        self.errno = errno
+
+
 class Missing(Enum):
     """What the host lacks when a SocketCAN bus cannot be opened."""
 

@@ -12,14 +12,9 @@ from pathlib import Path
 
 from virtual_bus import cli
 from virtual_bus.progress import Progress
+from virtual_bus.realtime import add_realtime_options, cpu_number, realtime_options
 
-from .common import (
-    PAPER_AXIS,
-    add_realtime_options,
-    cpu_number,
-    realtime_options,
-    simulated_axis_file,
-)
+from .common import PAPER_AXIS, simulated_axis_file
 
 NAME = "bench"
 HELP = "lockstep cycles per second and real-time latency"

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from virtual_bus import BusConfig, cli
+from virtual_bus.realtime import add_realtime_options, realtime_options
 
 from .. import od as objdict
 from ..errors import BridgeError
@@ -13,12 +14,7 @@ from ..interpolator import Move, load_move_file, parse_move
 from ..node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
 from ..profile import load_profile
 from ..timing import TimeMode
-from .common import (
-    add_realtime_options,
-    default_store_path,
-    realtime_options,
-    regulated_axis,
-)
+from .common import default_store_path, regulated_axis
 
 NAME = "run"
 HELP = "run the bridge against a drive on a CAN interface (real time)"

@@ -4,7 +4,12 @@ The simulated CiA 402 drive (``docs/drive.md``) as a process of its own on a CAN
 loads the physics, sends its boot-up message, serves NMT, SDO, SYNC (one position cycle of
 the physics per SYNC) and PDOs until SIGINT or SIGTERM, then leaves the bus, closes it and
 exits 0. Output: one line when the boot-up is out, one line at the end. Bad arguments or
-files: one line, exit 2.
+files: one line, exit 2; a real-time option the OS refuses: one line, exit 1.
+
+Real-time options (the bridge's, :mod:`virtual_bus.realtime`): ``--rt-priority N``,
+``--cpu N``, ``--lock-memory``, ``--freeze-gc``, ``--busy-poll`` (poll the bus around the
+instant the next SYNC is due instead of blocking: the drive answers without a thread's
+wake-up delay). They are applied to the one thread that serves the bus after the boot-up.
 
 Interfaces: ``virtual`` (python-can's in-process bus: only useful to a harness in the same
 process), ``socketcan`` (vcan0, can0), ``udp_multicast`` (only inside a private network
@@ -23,6 +28,7 @@ from types import FrameType
 
 from virtual_bus import BusConfig, VirtualBusError, cli, open_bus
 from virtual_bus.config import CIA301_BITRATES, DEFAULT_BITRATE
+from virtual_bus.realtime import add_realtime_options, realtime_options
 
 from ..axis import load_axis
 from ..drive.config import DriveConfig, TimeMode
@@ -72,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="P.toml",
         help="reserved for drive profiles (config/drives/*.toml); not read by this drive yet",
     )
+    add_realtime_options(parser)
 
 
 def check_drive_profile(path: Path | None) -> None:
@@ -96,9 +103,12 @@ def check_drive_profile(path: Path | None) -> None:
 def run(args: argparse.Namespace) -> int:
     check_drive_profile(args.drive_profile)
     axis = load_axis(args.axis)
+    rt = realtime_options(args)
     try:
         bus_config = BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate)
-        config = DriveProcessConfig(axis, args.node_id, DriveConfig(time_mode=CLOCKS[args.clock]))
+        config = DriveProcessConfig(
+            axis, args.node_id, DriveConfig(time_mode=CLOCKS[args.clock]), realtime=rt
+        )
         bus = open_bus(bus_config)
     except VirtualBusError as exc:
         raise DriveConfigError(str(exc)) from None
@@ -112,9 +122,12 @@ def run(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
 
+    options = f"; real time: {rt.describe()}" if rt.any else ""
+
     def ready(drive: SimulatedDrive) -> None:
         print(
-            f"drive {drive.node_id}: boot-up sent on {where}; serving until SIGINT/SIGTERM",
+            f"drive {drive.node_id}: boot-up sent on {where}{options}; serving until "
+            "SIGINT/SIGTERM",
             flush=True,
         )
 

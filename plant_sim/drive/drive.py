@@ -121,6 +121,7 @@ class SimulatedDrive:
         self._sync_count = 0
         self._sync_cob_id = 0
         self._rpdo_seen = False
+        self._tx_messages: dict[int, can.Message] = {}
 
         od = O.load_drive_od(self.config.eds_path, node_id)
         self._table = O.ObjectTable(od)
@@ -234,42 +235,61 @@ class SimulatedDrive:
         return self
 
     @contextlib.contextmanager
-    def polled(self) -> Iterator[Callable[[], int]]:
-        """Lockstep harnesses: receive in the caller's thread instead of the notifier thread.
+    def receiving_here(self) -> Iterator[Callable[[can.Message], None]]:
+        """Receive in the caller's thread instead of the notifier thread.
 
-        Pauses the drive's own notifier and yields ``poll()``, which hands every frame waiting
-        on the drive's end of the bus to the same canopen listeners the notifier would and
-        returns how many it handled. Frames still travel over the bus; only the thread that
-        receives them changes, which removes two thread wake-ups per cycle (~80 µs each on a
-        small VM). Only for a drive that owns its network (built on a bus); the notifier
-        restarts on exit.
+        Pauses the drive's own notifier and yields ``handle(msg)``, which hands one frame the
+        caller received from the drive's end of the bus to the same canopen listeners the
+        notifier would (frame guard first). Only for a drive that owns its network (built on
+        a bus); the notifier restarts on exit. The one-thread loop of a drive process
+        (:func:`plant_sim.drive.process.serve`) and :meth:`polled` are built on it.
         """
         if not self._own_network or not self._started:
-            raise DriveStateError("polled() needs a started drive built on its own bus")
+            raise DriveStateError("receiving_here() needs a started drive built on its own bus")
         network = self._network
         bus = network.bus
         assert bus is not None
         if network.notifier is not None:
             network.notifier.stop(timeout=5.0)
             network.notifier = None
-        listeners = list(network.listeners)
-        recv = bus.recv
+        listeners = tuple(network.listeners)
 
-        def poll() -> int:
-            n = 0
-            while (msg := recv(0.0)) is not None:
-                for listener in listeners:
-                    listener.on_message_received(msg)
-                n += 1
-            return n
+        def handle(msg: can.Message) -> None:
+            for listener in listeners:
+                listener.on_message_received(msg)
 
         try:
-            yield poll
+            yield handle
         finally:
             if self._started:
                 network.notifier = can.Notifier(
                     bus, network.listeners, self.config.notifier_timeout_s
                 )
+
+    @contextlib.contextmanager
+    def polled(self) -> Iterator[Callable[[], int]]:
+        """Lockstep harnesses: receive in the caller's thread instead of the notifier thread.
+
+        Pauses the drive's own notifier (:meth:`receiving_here`) and yields ``poll()``, which
+        hands every frame waiting on the drive's end of the bus to the same canopen listeners
+        the notifier would and returns how many it handled. Frames still travel over the bus;
+        only the thread that receives them changes, which removes two thread wake-ups per
+        cycle (~80 µs each on a small VM). Only for a drive that owns its network (built on a
+        bus); the notifier restarts on exit.
+        """
+        with self.receiving_here() as handle:
+            bus = self._network.bus
+            assert bus is not None
+            recv = bus.recv
+
+            def poll() -> int:
+                n = 0
+                while (msg := recv(0.0)) is not None:
+                    handle(msg)
+                    n += 1
+                return n
+
+            yield poll
 
     def stop(self) -> None:
         """Leave the bus: heartbeat, subscriptions and (own) notifier thread stop. The bus
@@ -440,7 +460,23 @@ class SimulatedDrive:
             )
 
     def _send(self, can_id: int, data: bytes) -> None:
-        self._network.send_message(can_id, data)
+        """Send one frame the drive produces (TPDOs, a SYNC-time heartbeat): canopen's
+        ``Network.send_message`` (same lock, same check of the notifier), with one
+        :class:`can.Message` per COB-ID built once and rewritten, not one per frame."""
+        network = self._network
+        bus = network.bus
+        if bus is None:
+            raise DriveStateError(f"drive {self.node_id}: not connected to a CAN bus")
+        with network.send_lock:
+            msg = self._tx_messages.get(can_id)
+            if msg is None:
+                msg = can.Message(arbitration_id=can_id, is_extended_id=can_id > 0x7FF, data=data)
+                self._tx_messages[can_id] = msg
+            else:
+                msg.data[:] = data
+                msg.dlc = len(data)
+            bus.send(msg)
+        network.check()
 
     def _send_emcy(self, code: int, register: int, data: bytes) -> None:
         if self._started and self._nmt.state in (NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL):

@@ -1,4 +1,7 @@
-"""Operating-system settings for the real-time loop: priority, CPU, memory, garbage collector.
+"""Operating-system settings of a real-time loop's process: priority, CPU, memory, garbage
+collector -- the same options for the bridge's loop (``python -m bridge run/bench``) and the
+simulated drive's (``python -m plant_sim drive``), on their command lines as
+:func:`add_realtime_options` and read back by :func:`realtime_options`.
 
 All off by default (:class:`RealTimeOptions`). :func:`apply_realtime` asks the kernel for each
 one that is on and raises :class:`RealTimeRefused` with one line naming the setting and the
@@ -15,36 +18,32 @@ before the refusal stay, and the message says which one failed).
   collector's reach and ``gc.disable()`` stops automatic collections; the loop then collects
   the young generation itself between cycles, when there is time before the next SYNC
   (:class:`GcBetweenCycles`).
-* ``busy_poll``: the loop polls the bus instead of blocking while it waits for the TPDOs of
-  a SYNC (no wake-up latency of a blocking wait; the CPU stays busy during the window --
-  for a dedicated, isolated CPU). Applied by the loop (``Bridge(busy_poll=...)``).
+* ``busy_poll``: the loop polls the bus instead of blocking during the short window in which
+  it expects a frame: the bridge while it waits for the TPDOs of a SYNC, the drive around the
+  instant its next SYNC is due (no wake-up latency of a blocking wait, which is 50-60 µs on a
+  small VM; the CPU stays busy during the window). Applied by the loops
+  (``Bridge(busy_poll=...)``, ``plant_sim.drive.process.serve``).
+
+``rt_priority`` and ``cpu`` act on the calling thread (and the threads it starts later):
+apply them from the thread that runs the loop.
 """
 
 from __future__ import annotations
 
+import argparse
 import ctypes
 import ctypes.util
 import gc
 import os
 from dataclasses import dataclass
 
-from .errors import BridgeConfigError, BridgeError
+from .errors import RealTimeConfigError, RealTimeRefused
 
 #: mlockall flags (linux/mman.h).
 MCL_CURRENT = 1
 MCL_FUTURE = 2
 #: Range of SCHED_FIFO priorities on Linux.
 FIFO_PRIORITY_RANGE = (1, 99)
-
-
-class RealTimeRefused(BridgeError, OSError):
-    """The OS does not allow a real-time setting; ``setting`` names it, ``errno`` is the OS
-    error number (or None)."""
-
-    def __init__(self, message: str, *, setting: str, errno: int | None = None) -> None:
-        super().__init__(message)
-        self.setting = setting
-        self.errno = errno
 
 
 @dataclass(frozen=True)
@@ -63,12 +62,12 @@ class RealTimeOptions:
         if p is not None and (
             isinstance(p, bool) or not isinstance(p, int) or not low <= p <= high
         ):
-            raise BridgeConfigError(
+            raise RealTimeConfigError(
                 f"rt_priority = {p!r}: SCHED_FIFO priority must be {low}..{high}"
             )
         c = self.cpu
         if c is not None and (isinstance(c, bool) or not isinstance(c, int) or c < 0):
-            raise BridgeConfigError(f"cpu = {c!r}: must be a CPU number >= 0")
+            raise RealTimeConfigError(f"cpu = {c!r}: must be a CPU number >= 0")
 
     @property
     def any(self) -> bool:
@@ -91,8 +90,22 @@ class RealTimeOptions:
         if self.freeze_gc:
             parts.append("gc frozen, collected between cycles")
         if self.busy_poll:
-            parts.append("bus polled during the TPDO window")
+            parts.append("bus polled where a frame is due")
         return ", ".join(parts) or "none (ordinary scheduling)"
+
+    def argv(self) -> list[str]:
+        """These options as the command-line arguments of :func:`add_realtime_options`
+        (:func:`realtime_options` reads them back to equal options): for a process started
+        with the same options."""
+        flags = (
+            ("--lock-memory", self.lock_memory),
+            ("--freeze-gc", self.freeze_gc),
+            ("--busy-poll", self.busy_poll),
+        )
+        numbers = (("--rt-priority", self.rt_priority), ("--cpu", self.cpu))
+        return [a for name, n in numbers if n is not None for a in (name, str(n))] + [
+            name for name, on in flags if on
+        ]
 
 
 def _set_fifo(priority: int) -> None:
@@ -193,3 +206,69 @@ class GcBetweenCycles:
         gc.unfreeze()
         if self._was_enabled:
             gc.enable()
+
+
+# --- command line ----------------------------------------------------------------------------
+def add_realtime_options(parser: argparse.ArgumentParser) -> None:
+    """--rt-priority, --cpu, --lock-memory, --freeze-gc, --busy-poll (all off by default;
+    refused in one line, exit 1, where the OS does not allow them)."""
+    parser.add_argument(
+        "--rt-priority",
+        type=_priority,
+        metavar="N",
+        help="run the loop under SCHED_FIFO at priority N (1..99; needs root/CAP_SYS_NICE)",
+    )
+    parser.add_argument("--cpu", type=cpu_number, metavar="N", help="pin the loop to CPU N")
+    parser.add_argument(
+        "--lock-memory", action="store_true", help="mlockall(MCL_CURRENT|MCL_FUTURE)"
+    )
+    parser.add_argument(
+        "--freeze-gc",
+        action="store_true",
+        help="freeze the garbage collector after start-up; collect only between cycles",
+    )
+    parser.add_argument(
+        "--busy-poll",
+        action="store_true",
+        help="poll the bus instead of blocking in the short window a frame is due (bridge: "
+        "the TPDOs after its SYNC; drive: its next SYNC); that window's CPU time is spent",
+    )
+
+
+def _integer(text: str, low: int, high: int | None, allowed: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < low or (high is not None and value > high):
+        raise argparse.ArgumentTypeError(f"{text!r}: {allowed}")
+    return value
+
+
+def _priority(text: str) -> int:
+    return _integer(text, 1, 99, "a SCHED_FIFO priority is 1..99")
+
+
+def cpu_number(text: str) -> int:
+    """A CPU number (argparse type)."""
+    return _integer(text, 0, None, "a CPU number is >= 0")
+
+
+def realtime_options(args: argparse.Namespace) -> RealTimeOptions:
+    """The real-time options of :func:`add_realtime_options` as :class:`RealTimeOptions`;
+    a CPU this process may not use is refused here (RealTimeRefused, exit 1), before any
+    work starts."""
+    cpu = args.cpu
+    if cpu is not None and hasattr(os, "sched_getaffinity"):
+        allowed = sorted(os.sched_getaffinity(0))
+        if cpu not in allowed:
+            raise RealTimeRefused(
+                f"--cpu {cpu}: not a CPU this process may use; allowed {allowed}", setting="cpu"
+            )
+    return RealTimeOptions(
+        rt_priority=args.rt_priority,
+        cpu=cpu,
+        lock_memory=args.lock_memory,
+        freeze_gc=args.freeze_gc,
+        busy_poll=args.busy_poll,
+    )
