@@ -45,4 +45,3 @@ def test_creeping_friction_is_the_base_and_stribeck_is_named() -> None:
     assert creep is not None and 2e-5 / 3.0 < creep < 2e-5 * 3.0
     assert "creeping friction law" in d.refit_decision
     assert d.left_out[:1] == [Effect.STRIBECK_FRICTION]
-

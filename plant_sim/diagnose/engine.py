@@ -207,9 +207,6 @@ def _refit_nominal(ctx: Context) -> Base:
         options_tried.append(
             (f"the re-fit with {', '.join(hold)} at nominal", constrained, s_con, l_con)
         )
-    creep = _creep_option(ctx, obj, scorer, min(options_tried, key=lambda o: o[2].cost))
-    if creep is not None:
-        options_tried.append(creep)
     name, best, s_best, l_best = min(options_tried, key=lambda o: o[2].cost)
     if s_nom.cost <= s_best.cost:
         decision = (
@@ -224,6 +221,20 @@ def _refit_nominal(ctx: Context) -> Base:
             f"kept {name}: held-out cost nominal {s_nom.cost:.4g}, {costs} "
             f"({100.0 * (1.0 - s_best.cost / s_nom.cost):.1f} % below the nominal)"
         )
+    kept = "the nominal" if best is nominal_fit else name
+    creep = _creep_option(ctx, obj, scorer, (kept, best, s_best, l_best))
+    if creep is not None and creep[2].cost < s_best.cost:
+        decision += (
+            f"; the friction law: {creep[0]} (creep speed "
+            f"{creep[1].values['friction.creep_speed']:.3g}) lowers the held-out cost "
+            f"{s_best.cost:.4g} -> {creep[2].cost:.4g} and is kept"
+        )
+        _, best, s_best, l_best = creep
+    elif creep is not None:
+        decision += (
+            f"; a creeping friction law does not lower the held-out cost "
+            f"({s_best.cost:.4g} -> {creep[2].cost:.4g}): set-valued friction kept"
+        )
     ctx.timings["nominal_refit"] = time.perf_counter() - ctx.t_start
     return Base(spec0, obj, scorer, nominal_fit, refit, best, s_best, l_best, found, hold, decision)
 
@@ -237,9 +248,10 @@ def _creep_option(
     """The friction law is part of the model's form, not of a data sheet: a set-valued
     Coulomb/Stribeck law (stiction) or one regularised below a creep speed (pre-sliding
     creep, ``friction.creep_speed``). When the nominal has sign-law friction and no creep
-    speed, the creep speed is fitted alone on the best re-fit so far (starts over three
-    decades of :data:`.parameters.CREEP_RANGE`); it becomes the base only if it lowers the
-    held-out cost, like every other parameter change."""
+    speed, the creep speed is fitted alone on the model kept so far (the nominal as given or
+    its re-fit, whichever has the lower held-out cost; starts over three decades of
+    :data:`.parameters.CREEP_RANGE`); it becomes the base only if it lowers the held-out
+    cost, like every other parameter change."""
     nominal, sc = ctx.nominal, ctx.scales
     fr = nominal.friction
     if fr.creep_speed is not None or not ((fr.coulomb or 0.0) > 0.0 or fr.stribeck):
