@@ -117,6 +117,10 @@ class Friction:
 
     tau_f(v) = coulomb*sign(v) + viscous*v (+ stribeck*exp(-(v/stribeck_speed)^2)*sign(v)),
     with the ``*_negative`` values for v < 0 when direction-dependent friction is modelled.
+    ``creep_speed`` (load units/s): absent, sign(v) is set-valued at rest (stiction: a load
+    stays at rest while the force is within the static level); given, sign(v) becomes
+    clip(v/creep_speed, -1, 1) (pre-sliding creep: a load under a force below the static
+    level creeps instead of sticking).
     """
 
     coulomb: float | None = None
@@ -125,11 +129,12 @@ class Friction:
     viscous_negative: float | None = None
     stribeck: float | None = None
     stribeck_speed: float | None = None
+    creep_speed: float | None = None
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            if f.name == "stribeck_speed":
-                _check_range("friction.stribeck_speed", self.stribeck_speed, low=0.0, low_open=True)
+            if f.name in ("stribeck_speed", "creep_speed"):
+                _check_range(f"friction.{f.name}", getattr(self, f.name), low=0.0, low_open=True)
             else:
                 _check_range(f"friction.{f.name}", getattr(self, f.name), low=0.0, high=1e6)
         if (self.stribeck is None) != (self.stribeck_speed is None):

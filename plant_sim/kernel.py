@@ -95,8 +95,9 @@ position_command = _inline(_core.position_command)
     P_OFS_N,  # whole speed cycles of the sensor time offset
     P_OFS_FRAC,  # fraction of a speed cycle on top of P_OFS_N
     P_HIST_LEN,  # ring-buffer length in use (>= P_OFS_N + 2)
+    P_V_CREEP,  # load units/s, creep speed of a regularised friction law (0: set-valued)
     N_PARAMS,
-) = range(45)
+) = range(46)
 
 # --- state vector --------------------------------------------------------------------------
 MAX_DELAY = 2048  # speed cycles of dead time the ring buffer holds
@@ -171,8 +172,40 @@ def load_force(p: np.ndarray, x: float) -> float:
 
 
 @_inline
+def kick_load_creep(p: np.ndarray, v: float, f_applied: float, h: float) -> float:
+    """New load speed under the regularised friction law (``P_V_CREEP`` > 0): below the creep
+    speed v_c the Coulomb/Stribeck level S grows linearly with speed, S·v/v_c (a linear zone,
+    Karnopp's regularisation without stiction: a load under a force below the break-away
+    level creeps at F/S·v_c instead of sticking, as a ball screw's pre-sliding does); above
+    it S·sign(v). Viscous friction b·v on top. The friction is taken implicitly (backward
+    Euler, stable for any zone slope S/v_c): v' + h/M·f(v') = v + h/M·F, solved exactly on
+    the law's linear pieces (the Stribeck excess is evaluated at the old speed)."""
+    h_m = h * p[P_INV_M]
+    vc = p[P_V_CREEP]
+    excess = 0.0
+    if p[P_FS] != 0.0:
+        r = v / p[P_VS]
+        excess = p[P_FS] * math.exp(-r * r)
+    s_pos = p[P_FC_POS] + excess
+    s_neg = p[P_FC_NEG] + excess
+    b_pos = p[P_FV_POS]
+    b_neg = p[P_FV_NEG]
+    a = v + f_applied * h_m
+    if a >= vc * (1.0 + h_m * b_pos) + h_m * s_pos:
+        return (a - h_m * s_pos) / (1.0 + h_m * b_pos)
+    if a <= -vc * (1.0 + h_m * b_neg) - h_m * s_neg:
+        return (a + h_m * s_neg) / (1.0 + h_m * b_neg)
+    if a >= 0.0:
+        return a / (1.0 + h_m * (s_pos / vc + b_pos))
+    return a / (1.0 + h_m * (s_neg / vc + b_neg))
+
+
+@_inline
 def kick_load(p: np.ndarray, v: float, f_applied: float, h: float) -> float:
-    """New load speed after impulse ``f_applied*h`` plus friction (set-valued at v = 0)."""
+    """New load speed after impulse ``f_applied*h`` plus friction (set-valued at v = 0, or
+    the regularised law of :func:`kick_load_creep`)."""
+    if p[P_V_CREEP] > 0.0:
+        return kick_load_creep(p, v, f_applied, h)
     h_m = h * p[P_INV_M]
     fs = p[P_FS]
     if v == 0.0:

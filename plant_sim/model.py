@@ -103,6 +103,7 @@ def build_params(
     if fr.stribeck is not None and fr.stribeck_speed is not None:
         p[K.P_FS] = kr * fr.stribeck
         p[K.P_VS] = fr.stribeck_speed
+    p[K.P_V_CREEP] = fr.creep_speed or 0.0
     p[K.P_F_CONST] = -kr * (dist.constant_torque or 0.0)
     if dist.periodic_amplitude is not None and dist.periodic_period is not None:
         p[K.P_F_PER] = kr * dist.periodic_amplitude

@@ -171,7 +171,9 @@ def test_refit_that_fits_worse_on_the_validation_recording_is_rejected() -> None
     d = diagnose(first, nominal, second, DiagnosisOptions(effects=(Effect.CONSTANT_LOAD_TORQUE,)))
     assert d.refit_decision.startswith("re-fit rejected")
     assert d.left_out == []  # a load torque fitted on the first does not help the second
-    assert d.fitted == nominal
+    # no parameter of the nominal is bent; only the friction law's form may change, and
+    # only when it lowers the held-out cost on the second recording (docs: section 2)
+    assert d.fitted.with_values({"friction.creep_speed": None}) == nominal
     assert "rejected" in d.explanation
 
 

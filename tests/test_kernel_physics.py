@@ -189,6 +189,37 @@ def test_coulomb_friction_holds_the_load_below_breakaway(paper: AxisConfig) -> N
     assert out[-1, 1] == pytest.approx(expected, rel=1e-3)
 
 
+@pytest.mark.parametrize("dt", [1e-4, 1e-5])
+def test_creeping_friction_law_creeps_below_breakaway_and_slides_above(
+    paper: AxisConfig, dt: float
+) -> None:
+    """``friction.creep_speed`` (regularised law): a torque below the Coulomb level makes the
+    rigid axis creep at the steady speed where the linear zone balances it,
+    v = v_c·tau/(coulomb + viscous·v_c) (analytic); above it the axis accelerates at
+    (torque − coulomb − viscous·v)/J like the set-valued law. Implicit friction: the zone's
+    slope (here coulomb/v_c ~ 1e5 times J/dt) is stable at either step."""
+    vc = 1e-5
+    axis = paper.with_values(
+        {
+            "mechanics.antiresonance": None,
+            "mechanics.damping_ratio": None,
+            "mechanics.backlash": None,
+            "friction.creep_speed": vc,
+        }
+    )
+    coulomb, viscous = axis.friction.coulomb, axis.friction.viscous
+    n = round(0.1 / dt)
+    out = _free_run(axis, dt, n, 0.0, tau=0.6)  # half the Coulomb level
+    creep = vc * 0.6 / (coulomb + viscous * vc)
+    assert out[-1, 3] == pytest.approx(creep, rel=1e-6)
+    assert out[-1, 2] == pytest.approx(creep * 0.1, rel=0.02)
+    out = _free_run(axis, dt, n, 0.0, tau=3.0)
+    v = out[-1, 3]
+    accel = (3.0 - coulomb - viscous * v) / axis.total_inertia / axis.transmission_ratio
+    v_prev = out[-2, 3]
+    assert (v - v_prev) / dt == pytest.approx(accel, rel=1e-2)
+
+
 def test_current_loop_is_a_first_order_lag(paper: AxisConfig) -> None:
     """advance_torque with a torque step: τ(t) = τ_cmd·(1 − exp(−t/T_c)) at every sample."""
     plant = AxisPlant(paper)

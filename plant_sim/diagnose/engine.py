@@ -67,8 +67,10 @@ from .mismatch import (
     residual_tests,
 )
 from .parameters import (
+    MODEL_FORM_KEYS,
     held_at_nominal,
     nominal_spec,
+    parameter_for,
     rounded,
     suspects,
 )
@@ -93,7 +95,7 @@ from .scoring import (
     training_blocks,
     validation_objectives,
 )
-from .selection import Selection, select
+from .selection import SCREEN_NFEV, Selection, select
 from .stages import Base, Context, Located, axis_values
 
 __all__ = [
@@ -219,8 +221,57 @@ def _refit_nominal(ctx: Context) -> Base:
             f"kept {name}: held-out cost nominal {s_nom.cost:.4g}, {costs} "
             f"({100.0 * (1.0 - s_best.cost / s_nom.cost):.1f} % below the nominal)"
         )
+    kept = "the nominal" if best is nominal_fit else name
+    creep = _creep_option(ctx, obj, scorer, (kept, best, s_best, l_best))
+    if creep is not None and creep[2].cost < s_best.cost:
+        decision += (
+            f"; the friction law: {creep[0]} (creep speed "
+            f"{creep[1].values['friction.creep_speed']:.3g}) lowers the held-out cost "
+            f"{s_best.cost:.4g} -> {creep[2].cost:.4g} and is kept"
+        )
+        _, best, s_best, l_best = creep
+    elif creep is not None:
+        decision += (
+            f"; a creeping friction law does not lower the held-out cost "
+            f"({s_best.cost:.4g} -> {creep[2].cost:.4g}): set-valued friction kept"
+        )
     ctx.timings["nominal_refit"] = time.perf_counter() - ctx.t_start
     return Base(spec0, obj, scorer, nominal_fit, refit, best, s_best, l_best, found, hold, decision)
+
+
+def _creep_option(
+    ctx: Context,
+    obj: Objective,
+    scorer: Scorer,
+    on: tuple[str, FitResult, Score, np.ndarray],
+) -> tuple[str, FitResult, Score, np.ndarray] | None:
+    """The friction law is part of the model's form, not of a data sheet: a set-valued
+    Coulomb/Stribeck law (stiction) or one regularised below a creep speed (pre-sliding
+    creep, ``friction.creep_speed``). When the nominal has sign-law friction and no creep
+    speed, the creep speed is fitted alone on the model kept so far (the nominal as given or
+    its re-fit, whichever has the lower held-out cost; starts over three decades of
+    :data:`.parameters.CREEP_RANGE`); it becomes the base only if it lowers the held-out
+    cost, like every other parameter change."""
+    nominal, sc = ctx.nominal, ctx.scales
+    fr = nominal.friction
+    if fr.creep_speed is not None or not ((fr.coulomb or 0.0) > 0.0 or fr.stribeck):
+        return None
+    ctx.stage("re-fit with a creeping friction law")
+    name, base_fit, s_on, _ = on
+    key = "friction.creep_speed"
+    starts = [{key: f * sc.speed_max} for f in (1e-4, 1e-3, 1e-2)]
+    par = parameter_for(key, starts[1][key], sc, nominal, base_fit.axis)
+    spec = FitSpec(
+        base_fit.axis.with_values({key: starts[1][key]}),
+        (par,),
+        tuple(starts[::2]),
+        options=base_fit.options,
+        n_global=0,
+    )
+    res = fit(spec, obj, SCREEN_NFEV, 2, ctx.options.seed, ctx.tick)
+    res = replace(res, values={**base_fit.values, **res.values})
+    score, loss = scorer.score(res, s_on.n_free + 1)
+    return (f"{name} with a creeping friction law", res, score, loss)
 
 
 # ----------------------------------------------------------------------------------------
@@ -328,6 +379,7 @@ def _changes(
     if any(p.key == PERIODIC_COS for p in spec0.parameters):
         keys += ["disturbance.periodic_amplitude", "disturbance.periodic_phase"]
     keys += [k for e in added for k in MODELS[e].keys if k not in keys]
+    keys += [k for k in MODEL_FORM_KEYS if k not in keys]
     out = {}
     for k in keys:
         v = axis.value(k)

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from .adequacy import inadequate
 from .effects import MODELS
 from .mismatch import ResidualTests
-from .parameters import format_value, rounded
+from .parameters import MODEL_FORM_KEYS, format_value, rounded
 from .results import Diagnosis
 
 #: Held-out gain (per cent) of a candidate that was not named but is worth a sentence.
@@ -35,6 +35,10 @@ def _correlations(tests: Sequence[ResidualTests]) -> str:
 def _changes(d: Diagnosis) -> str:
     out = []
     for key, (nom, new) in d.fitted_values.items():
+        if key in MODEL_FORM_KEYS and not math.isfinite(nom):
+            # the friction law's form: absent in the nominal (set-valued), kept on held-out data
+            out.append(f"{key} (absent: set-valued) -> {format_value(key, new, d.fitted)}")
+            continue
         if not math.isfinite(nom) or nom == new:
             continue
         old = format_value(key, rounded(nom), d.nominal)

@@ -170,6 +170,9 @@ def parameter_for(
     if key == "friction.stribeck_speed":
         lo, hi = vmax * 1e-4, vmax
         return Parameter(key, min(lo, value), max(hi, value), value, value, log=True)
+    if key == "friction.creep_speed":
+        lo, hi = vmax * CREEP_RANGE[0], vmax * CREEP_RANGE[1]
+        return Parameter(key, min(lo, value), max(hi, value), value, value, log=True)
     if key == "disturbance.constant_torque":
         lim = max(0.5 * tp, 2.0 * abs(value))
         return Parameter(key, -lim, lim, value, max(abs(value), 0.02 * tp))
@@ -205,7 +208,16 @@ UNCERTAIN_KEYS = (
     "disturbance.constant_torque",
     "disturbance.periodic_amplitude",
     "disturbance.periodic_period",
+    "friction.creep_speed",
 )
+
+#: Creep speed of the regularised friction law, as fractions of the recording's top speed:
+#: from practically set-valued (1e-5) to a linear zone over 5 % of the top speed.
+CREEP_RANGE = (1e-5, 0.05)
+
+#: Keys of the model's form that no data sheet states (the friction law's creep speed): they
+#: are fitted, but a value on a bound or far from a nominal is no sign of missing physics.
+MODEL_FORM_KEYS = ("friction.creep_speed",)
 
 
 def free_keys(
@@ -291,7 +303,7 @@ def suspects(
     from their nominal value (only keys the nominal has with a non-zero value)."""
     out = []
     for p in parameters:
-        if p.key not in result.values:
+        if p.key not in result.values or p.key in MODEL_FORM_KEYS:
             continue
         value = result.values[p.key]
         lo, hi = p.u_bounds
