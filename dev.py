@@ -18,6 +18,7 @@ import hashlib
 import json
 import os
 import re
+import shutil
 import statistics
 import subprocess
 import sys
@@ -78,13 +79,15 @@ class Figure:
 class Bench:
     """A command of the project (``python -m ...`` args; ``{out}`` is a fresh directory) and
     the JSON file it writes there (``result``) holding its figures; ``setup``: commands run
-    before it, untimed (a setup that fails, e.g. data not present, leaves the figures out)."""
+    before it, untimed (a setup that fails, e.g. data not present, leaves the figures out);
+    ``needs``: a program it runs (not installed: the figures are left out, saying so)."""
 
     name: str
     args: tuple[str, ...]
     result: str
     figures: tuple[Figure, ...]
     setup: tuple[tuple[str, ...], ...] = ()
+    needs: str = ""
 
 
 def _benches(realtime_s: float) -> tuple[Bench, ...]:
@@ -230,6 +233,7 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
             ),
         ),
         *(_realtime_bench(rate_hz, realtime_s) for rate_hz in (1000, 2000)),
+        *(_host_latency_bench(rate_hz, realtime_s) for rate_hz in (1000, 2000)),
         Bench(
             "monitor",
             ("plant_sim", "monitor-bench", "--counts", "100,1000", "--json", "{out}/m.json"),
@@ -286,6 +290,37 @@ def _realtime_bench(rate_hz: int, seconds: float) -> Bench:
     )
 
 
+def _host_latency_bench(rate_hz: int, seconds: float) -> Bench:
+    """cyclictest (rt-tests) with the real-time bench's settings: the floor any loop at that
+    rate meets on this host (``python -m bridge host-latency``)."""
+    host = f"host floor (cyclictest), {rate_hz} Hz, {seconds:g} s"
+    return Bench(
+        f"host-latency-{rate_hz // 1000}k",
+        (
+            "bridge",
+            "host-latency",
+            "--rate-hz",
+            str(rate_hz),
+            "--seconds",
+            f"{seconds:g}",
+            "--cpu",
+            "1",
+            "--rt-priority",
+            "50",
+            "--json",
+            "{out}/host.json",
+        ),
+        "host.json",
+        (
+            Figure(f"{host}: wake-up latency p99", "host_latency.latency_us_p99", "µs"),
+            Figure(f"{host}: wake-up latency max", "host_latency.latency_us_max", "µs"),
+            Figure(f"{host}: wake-ups one cycle late", "host_latency.late_cycles", "cycles"),
+            Figure(f"{host}: hypervisor steal, CPU 1", "host_latency.host_steal_ms.cpu1", "ms"),
+        ),
+        needs="cyclictest",
+    )
+
+
 def _lookup(doc: object, keys: str) -> float | None:
     for key in keys.split("."):
         if not isinstance(doc, dict) or key not in doc:
@@ -295,6 +330,9 @@ def _lookup(doc: object, keys: str) -> float | None:
 
 
 def _run_bench(bench: Bench, quiet: bool) -> dict[str, float | None]:
+    if bench.needs and shutil.which(bench.needs) is None:
+        _say(f"{bench.needs} is not installed: {bench.name} left out", quiet)
+        return {f.label: None for f in bench.figures}
     with tempfile.TemporaryDirectory(prefix="dev-bench-") as tmp:
         for setup in bench.setup:
             cmd = [str(PY), "-m", *(a.replace("{out}", tmp) for a in setup), "--quiet"]

@@ -1,4 +1,4 @@
-"""``python -m bridge COMMAND``: run, demo, busload, bench, eds, config, probe.
+"""``python -m bridge COMMAND``: run, demo, busload, bench, host-latency, eds, config, probe.
 
 Each command is a module under :mod:`bridge.commands` (``NAME``, ``HELP``,
 ``add_arguments``, ``run``), run by :mod:`virtual_bus.cli`. Bad arguments or files end with a
@@ -21,7 +21,7 @@ from virtual_bus.errors import BusUnavailableError, RealTimeRefused
 from .commands.common import PROG
 from .errors import BridgeError, DriveSetupError
 
-COMMANDS = ("run", "demo", "busload", "bench", "eds", "config", "probe")
+COMMANDS = ("run", "demo", "busload", "bench", "host_latency", "eds", "config", "probe")
 DESCRIPTION = (
     "CANopen bridge running the backlash regulator of Mohammadiasl, 'Vibration Detection and "
     "Backlash Suppression in Machine Tools' (eq. 7, 15) against a CiA 402 drive in cyclic "

@@ -115,7 +115,8 @@ def steal_s(stat_text: str) -> dict[str, float]:
     return out
 
 
-def _host_steal() -> dict[str, float]:
+def host_steal_s() -> dict[str, float]:
+    """:func:`steal_s` of this host now (empty where there is no /proc/stat)."""
     try:
         return steal_s(Path("/proc/stat").read_text())
     except OSError:
@@ -245,12 +246,12 @@ def _measure(bridge: Bridge, cycles: int, rt: RealTimeOptions) -> dict[str, floa
     for line in applied:
         print(f"bench: {line}")
     floor = host_floor()
-    steal0 = _host_steal()
+    steal0 = host_steal_s()
     wall0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
     n = bridge.run(until=lambda b: b.cycle_index >= cycles)
     wall = time.perf_counter() - wall0
     cpu, thread = time.process_time() - cpu0, time.thread_time() - thread0
-    steal1 = _host_steal()
+    steal1 = host_steal_s()
     return {
         **floor,
         "host_steal_ms": {

@@ -23,7 +23,17 @@ AXIS_FILE = "config/paper_axis.toml"
 
 @pytest.mark.parametrize(
     "command",
-    [[], ["run"], ["demo"], ["busload"], ["bench"], ["eds"], ["config"], ["config", "load"]],
+    [
+        [],
+        ["run"],
+        ["demo"],
+        ["busload"],
+        ["bench"],
+        ["host-latency"],
+        ["eds"],
+        ["config"],
+        ["config", "load"],
+    ],
 )
 def test_help(command: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as info:

@@ -65,3 +65,26 @@ def test_every_readme_bench_figure_names_a_key_its_command_writes() -> None:
         "lockstep_recording.cycles_per_s",
     ):
         assert key in keys
+
+
+def test_host_latency_figures_are_read_from_what_the_command_writes(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from bridge.host_latency import json_doc, parse_cyclictest_json
+
+    stored = ROOT / "tests" / "data" / "cyclictest_1khz.json"
+    doc = json_doc(parse_cyclictest_json(stored.read_text(), 1000), {"cpu0": 0.0, "cpu1": 20.0})
+    (bench,) = (b for b in dev._benches(60.0) if b.name == "host-latency-1k")
+    values = {f.label: dev._lookup(doc, f.keys) for f in bench.figures}
+    assert None not in values.values()
+    assert values["host floor (cyclictest), 1000 Hz, 60 s: wake-up latency max"] == 3178
+    assert values["host floor (cyclictest), 1000 Hz, 60 s: hypervisor steal, CPU 1"] == 20.0
+
+
+def test_a_bench_whose_program_is_missing_is_left_out(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(dev.shutil, "which", lambda _name: None)
+    (bench,) = (b for b in dev._benches(60.0) if b.name == "host-latency-2k")
+    assert set(dev._run_bench(bench, False).values()) == {None}
+    assert "cyclictest is not installed: host-latency-2k left out" in capsys.readouterr().err
