@@ -15,7 +15,8 @@ Running, per SYNC k (docs/canopen_layout.md: the set point takes effect at SYNC 
    discrepancy, software position limits (2014h) -- any of them stops the axis (quick stop,
    set point 0) with a :class:`StopReason` and a message until a reset command;
 3. interpolator: x_ref and its speed, omega_s = k_r * speed;
-4. eq. 7 on the load scale: omega_c = k_r k_v (x_ref - x_l) (:class:`regulator.PositionController`);
+4. eq. 7 on the load scale: omega_c = k_r k_v (x_ref - x_l) (:class:`regulator.PositionController`),
+   plus k_vff omega_s where the axis has velocity feed-forward (200Bh; the simulator's law);
 5. eq. 15: omega_r = omega_s - lambda (omega_s - omega_c) (:class:`regulator.BacklashRegulator`),
    clamped to the speed limit, sent as 60FFh.
 """
@@ -542,7 +543,8 @@ class CycleController:
         x_l = self.load_position
         self.position_reference = x_ref
         omega_s = kr * interp.speed
-        omega_c = self.position_controller.step(x_ref, x_l)  # eq. 7
+        # eq. 7, plus the velocity feed-forward of the axis file (200Bh; 0 in the paper)
+        omega_c = self.position_controller.step(x_ref, x_l) + p.velocity_feedforward * omega_s
         error = x_ref - x_l
         difference = self.motor_position_rad / kr - x_l - self._difference_at_enable
         self.following_error = error

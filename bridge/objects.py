@@ -96,6 +96,7 @@ _PARAMS: dict[tuple[int, int], Codec] = {
     (objdict.FE_LIMIT, 0): _real("following_error_limit"),
     (objdict.DISC_LIMIT, 0): _real("discrepancy_limit"),
     (objdict.PDO_TOLERANCE, 0): _u8("pdo_loss_tolerance"),
+    (objdict.VELOCITY_FF, 0): _real("velocity_feedforward"),
     (objdict.POSITION_LIMITS, 1): _real("position_limit_min"),
     (objdict.POSITION_LIMITS, 2): _real("position_limit_max"),
     (objdict.CYCLE_PERIOD, 0): (

@@ -112,7 +112,7 @@ DEVICE_TYPE, ERROR_REGISTER, COB_ID_SYNC, CYCLE_PERIOD = 0x1000, 0x1001, 0x1005,
 DEVICE_NAME, HEARTBEAT_CONSUMER, IDENTITY = 0x1008, 0x1016, 0x1018
 STORE_PARAMETERS, RESTORE_DEFAULTS = 0x1010, 0x1011
 KV, REG_ENABLE, BETA_T, WINDOW_N, TV, TF, KR = range(0x2000, 0x2007)
-SPEED_LIMIT, FE_LIMIT, DISC_LIMIT, PDO_TOLERANCE = range(0x2007, 0x200B)
+SPEED_LIMIT, FE_LIMIT, DISC_LIMIT, PDO_TOLERANCE, VELOCITY_FF = range(0x2007, 0x200C)
 TARGET, FEED, ACCEL, MOVE_STATUS, POSITION_LIMITS = range(0x2010, 0x2015)
 COMMAND = 0x2020
 BETA, LAMBDA, FOLLOWING_ERROR, MOTOR_LOAD_DIFF, STATE, STOP_REASON, STOP_MESSAGE = range(
@@ -339,6 +339,16 @@ OBJECTS: tuple[Entry | Group, ...] = (
         0,
         255,
     ),
+    _var(
+        VELOCITY_FF,
+        "Velocity feed-forward k_vff",
+        R,
+        RW,
+        0.0,
+        "",
+        "omega_c = k_r kv (x_ref - x_l) + k_vff omega_s (axis file control.velocity_feedforward); "
+        "[0, 1.5]; locked while enabled",
+    ),
     # --- moves ------------------------------------------------------------------------------
     _var(
         TARGET,
@@ -533,7 +543,7 @@ STORED: frozenset[tuple[int, int]] = frozenset(
     {
         (CYCLE_PERIOD, 0),
         (HEARTBEAT_CONSUMER, 1),
-        *((index, 0) for index in range(KV, PDO_TOLERANCE + 1)),
+        *((index, 0) for index in range(KV, VELOCITY_FF + 1)),
         (FEED, 0),
         (ACCEL, 0),
         (POSITION_LIMITS, 1),

@@ -52,6 +52,7 @@ MAX_SPEED_RAD_S = INT32_MAX / MOTOR_INCREMENTS_PER_RAD
 #: Numeric ranges per field (the regulator's cross-field rules come on top).
 BOUNDS: dict[str, Bound] = {
     "kv_per_s": Bound(0.0, 1000.0, "1/s", low_open=True),
+    "velocity_feedforward": Bound(0.0, 1.5, ""),
     "beta_t_rad_s": Bound(0.0, 1e4, "rad/s", low_open=True),
     "n": Bound(1, 64, ""),
     "tv_s": Bound(0.0, 1000.0, "s", low_open=True),
@@ -76,6 +77,7 @@ OPTIONAL_FIELDS = frozenset({"tv_s"})
 LOCKED = frozenset(
     {
         "kv_per_s",
+        "velocity_feedforward",
         "regulator_enabled",
         "beta_t_rad_s",
         "n",
@@ -145,6 +147,10 @@ class BridgeParams:
     by the target-position object. position_limit_min / position_limit_max [2014h:01/02]:
     software travel limits, load units (like CiA 402 607Dh), min < max: moves to targets
     outside are refused and an axis outside them is stopped (bridge.cycle).
+    velocity_feedforward [200Bh]: k_vff, 0..1.5, the axis file's
+    ``control.velocity_feedforward``: the interpolator's speed times k_vff is added to the
+    position controller's output, omega_c = k_r k_v (x_ref - x_l) + k_vff omega_s, as the
+    simulator does (docs/axis-file.md).
     """
 
     kv_per_s: float
@@ -164,6 +170,7 @@ class BridgeParams:
     accel: float = 0.0
     position_limit_min: float = -DEFAULT_POSITION_LIMIT[AxisKind.LINEAR]
     position_limit_max: float = DEFAULT_POSITION_LIMIT[AxisKind.LINEAR]
+    velocity_feedforward: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -198,7 +205,8 @@ class BridgeParams:
 
     @classmethod
     def for_axis(cls, axis: AxisConfig, regulator: RegulatorConfig | None = None) -> BridgeParams:
-        """Defaults for an axis file: k_v, k_r and the cycle from ``[control]``; regulator
+        """Defaults for an axis file: k_v, k_r, the cycle and the velocity feed-forward from
+        ``[control]`` (with ``axis.transmission_ratio``); regulator
         parameters from ``regulator`` (or the regulator package's defaults); limits by the
         axis kind."""
         reg = regulator or RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
@@ -219,6 +227,7 @@ class BridgeParams:
             ),
             position_limit_min=-DEFAULT_POSITION_LIMIT[axis.kind],
             position_limit_max=DEFAULT_POSITION_LIMIT[axis.kind],
+            velocity_feedforward=float(axis.control.velocity_feedforward or 0.0),
         )
 
     def regulator_config(self) -> RegulatorConfig:
