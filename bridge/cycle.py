@@ -74,6 +74,7 @@ class StopReason(Enum):
     CYCLE_OVERRUN = 11  # the loop overran its cycle (SYNC slots skipped) too often in a row
     INTERNAL_ERROR = 12  # the controller's own step failed (a bug; the message names it)
     SYNC_CONFLICT = 13  # a SYNC the bridge did not send: a second SYNC producer on the bus
+    ENCODER_EMCY = 14  # the CiA 406 encoder node (load scale) sent an EMCY with a non-zero code
 
 
 class Command(IntEnum):
@@ -201,6 +202,7 @@ class CycleController:
         self.encoder_id: int | None = None
         self._encoder_heartbeat_at: float | None = None
         self._encoder_state = NMT_OPERATIONAL
+        self._encoder_emcy_pending: tuple[int, int] | None = None
 
     # --- configuration ---------------------------------------------------------------------
     def _build(self, params: BridgeParams) -> None:
@@ -277,6 +279,12 @@ class CycleController:
         if error_code != 0:
             self._emcy_pending = (error_code, error_register)
 
+    def on_encoder_emcy(self, error_code: int, error_register: int) -> None:
+        """An EMCY of the CiA 406 encoder node that supplies the load position: a non-zero
+        code means its position may be wrong, so the axis stops (0000h: error reset)."""
+        if error_code != 0:
+            self._encoder_emcy_pending = (error_code, error_register)
+
     def restart_supervision(self) -> None:
         """Forget heartbeats and EMCYs seen so far (the drive's boot-up and pre-operational
         heartbeats during start-up); monitoring begins with the next heartbeat."""
@@ -285,6 +293,7 @@ class CycleController:
         self._encoder_heartbeat_at = None
         self._encoder_state = NMT_OPERATIONAL
         self._emcy_pending = None
+        self._encoder_emcy_pending = None
 
     def command(self, command: Command) -> None:
         """Enable, disable or reset; ParameterError 0800 0022 if not possible now."""
@@ -467,6 +476,14 @@ class CycleController:
                     f"drive heartbeat reports {what} 0x{self._heartbeat_state:02X}, "
                     f"not operational (0x05)",
                 )
+        if self._encoder_emcy_pending is not None:
+            code, register = self._encoder_emcy_pending
+            self._encoder_emcy_pending = None
+            return self._stop(
+                StopReason.ENCODER_EMCY,
+                f"encoder node {self.encoder_id} EMCY error code 0x{code:04X}, error register "
+                f"0x{register:02X}: its position (the load scale) is not trusted",
+            )
         if self._encoder_heartbeat_at is not None:
             return self._supervise_encoder(self._encoder_heartbeat_at)
         return False

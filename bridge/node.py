@@ -263,6 +263,7 @@ class Bridge:
         self._sync_msg = CycleMessage(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
         self._sync_msg.is_rx = False
         self._encoder_heartbeat = -1
+        self._encoder_emcy = -1
         self._supervision_ids = frozenset((self.ids.emcy, self.ids.heartbeat))
         self.use_layout(contract_layout(config.drive_id))
         self.drive_info: DriveInfo | None = None
@@ -283,6 +284,7 @@ class Bridge:
         self._lengths = self._fixed_lengths | {f.can_id: f.dlc for f in layout.frames}
         if self._encoder_heartbeat >= 0:
             self._lengths[self._encoder_heartbeat] = HEARTBEAT_LENGTH
+            self._lengths[self._encoder_emcy] = EMCY_LENGTH
         self._slots: list[bytearray | None] = [None] * len(self._tpdo_ids)
         self._rpdo_msg = CycleMessage(
             arbitration_id=layout.rpdo_can_id, data=bytes(layout.rpdo_dlc), is_extended_id=False
@@ -326,6 +328,9 @@ class Bridge:
             self._tpdo(slot, msg.data)
         elif cid == self._encoder_heartbeat:
             self.controller.on_encoder_heartbeat(msg.data[0], self.pacer.now())
+        elif cid == self._encoder_emcy:
+            code, register = _EMCY.unpack_from(msg.data)
+            self.controller.on_encoder_emcy(code, register)
         elif cid == self.ids.heartbeat:
             self.controller.on_heartbeat(msg.data[0], self.pacer.now())
             self.network.notify(cid, msg.data, msg.timestamp)
@@ -376,8 +381,13 @@ class Bridge:
             if info.encoder_id is not None:
                 self.controller.encoder_id = info.encoder_id
                 self._encoder_heartbeat = 0x700 + info.encoder_id
-                self._supervision_ids = self._supervision_ids | {self._encoder_heartbeat}
+                self._encoder_emcy = 0x080 + info.encoder_id  # CiA 301 default 1014h
+                self._supervision_ids = self._supervision_ids | {
+                    self._encoder_heartbeat,
+                    self._encoder_emcy,
+                }
                 self._lengths[self._encoder_heartbeat] = HEARTBEAT_LENGTH
+                self._lengths[self._encoder_emcy] = EMCY_LENGTH
         self.controller.restart_supervision()
         self.controller.state = BridgeState.ENABLING
         return self.drive_info
@@ -385,7 +395,7 @@ class Bridge:
     # --- the loop ---------------------------------------------------------------------------
     def _receive(self, msg: can.Message) -> None:
         """A frame received by the loop: a TPDO of the layout goes to its slot now (or counts
-        late outside a window); the drive's EMCY and heartbeat (and an encoder's heartbeat)
+        late outside a window); the drive's EMCY and heartbeat (and an encoder's heartbeat and EMCY)
         are supervision inputs of this very cycle and cheap (a few assignments): handled now;
         anything else (SDO, NMT, what canopen handles) waits in the service ring for the time
         between cycles."""

@@ -157,12 +157,14 @@ def test_adaptive_start_up_of_the_simulated_drive_is_the_contract_layout() -> No
     assert DriveProfile().load_source is LoadSource.AUTO
 
 
-def test_loop_with_a_cia406_encoder_node_as_the_load_scale() -> None:
+@pytest.mark.parametrize("fault", ["heartbeat lost", "emcy"])
+def test_loop_with_a_cia406_encoder_node_as_the_load_scale(fault: str) -> None:
     """The simulated drive without its load scale in the PDOs and python canopen's
     LocalNode of a CiA 406 encoder (node 5) on the same bus: the bridge configures the
     encoder's TPDO1 (6004h on SYNC), canopen's PDO code sends the load position from that
-    mapping every SYNC, the loop closes on it; when the encoder's heartbeat stops the axis
-    stops with the encoder named."""
+    mapping every SYNC, the loop closes on it; when the encoder's heartbeat stops, or the
+    encoder sends an EMCY (canopen's own EmcyProducer, 7300h sensor error), the axis stops
+    with the encoder named and no set point but 0 after it."""
     channel = f"enc-{uuid.uuid4().hex[:12]}"
     enc_bus = can.Bus(interface="virtual", channel=channel)
     enc_net = canopen.Network(enc_bus)
@@ -219,10 +221,19 @@ def test_loop_with_a_cia406_encoder_node_as_the_load_scale() -> None:
             assert sim.drive.plant.load_position == pytest.approx(start + 0.004, abs=3e-6)
             assert c.load_position == pytest.approx(plant.load_position, abs=2e-6)
             assert sim.bridge.counters.missed == 0
-            beats["on"] = False
-            sim.bridge.run(until=lambda b: b.controller.state is BridgeState.STOPPED)
-            assert c.stop_reason is StopReason.HEARTBEAT_LOST
-            assert "encoder node 5" in c.stop_message
+            if fault == "emcy":
+                c.queue_move(Move(start, 0.02))  # moving when the encoder reports its error
+                sim.bridge.run(cycles=20)
+                encoder.emcy.send(0x7300, 0x01)
+                sim.bridge.run(cycles=2)
+                assert c.stop_reason is StopReason.ENCODER_EMCY
+                assert "encoder node 5 EMCY error code 0x7300" in c.stop_message
+                assert c.omega_r == 0.0
+            else:
+                beats["on"] = False
+                sim.bridge.run(until=lambda b: b.controller.state is BridgeState.STOPPED)
+                assert c.stop_reason is StopReason.HEARTBEAT_LOST
+                assert "encoder node 5" in c.stop_message
     finally:
         notifier.stop(2.0)
         enc_bus.shutdown()
