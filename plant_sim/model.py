@@ -119,6 +119,7 @@ def build_params(
     p[K.P_LAG_MEAN] = (
         1.0 - c.current_lag / dt_sub * (1.0 - p[K.P_LAG_ALPHA]) if c.current_lag else 1.0
     )
+    p[K.P_SPD_ALPHA] = math.exp(-c.speed_cycle / c.speed_filter) if c.speed_filter else 0.0
     n_delay = round((c.delay or 0.0) / c.speed_cycle)
     if n_delay > K.MAX_DELAY:
         raise ScenarioError(
