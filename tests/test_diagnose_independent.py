@@ -75,3 +75,17 @@ def test_the_drives_speed_filter_is_simulated_with_and_kept() -> None:
     text = axis_text(d)
     assert f"speed_filter = {filt!r}" in text
     assert load_axis_text(text).control.speed_filter == filt
+
+
+@pytest.mark.slow
+def test_nothing_left_out_names_nothing_once_the_creep_base_is_refitted() -> None:
+    """Matrix seed 11's slide recording with nothing left out (and the plant's speed filter
+    stated): with the creep speed fitted alone on the base, every candidate's joint re-fit
+    finished the base's own fit and asymmetric friction was named (z 4.1); fitted jointly
+    with the base's parameters, no candidate passes."""
+    case = Case("slide-none-1", "slide", None, 11024, 25.0)
+    gen = generate(case)
+    d = diagnose(gen.recording, gen.nominal)
+    assert d.refit.friction.creep_speed is not None
+    assert d.left_out == []
+    assert all(c.improvement_percent < 1.0 for c in d.candidates)
