@@ -245,8 +245,9 @@ class AxisPlant:
 
     @property
     def motor_speed_rad_s(self) -> float:
-        """The drive's speed actual value (encoder difference over the last speed cycle),
-        shifted like :attr:`motor_position_rad`."""
+        """The drive's speed actual value (encoder difference over the last speed cycle,
+        through the ``control.speed_filter`` low-pass when the axis states one), shifted like
+        :attr:`motor_position_rad`."""
         return float(K.motor_speed_measured(self._p, self._st))
 
     @property
