@@ -202,6 +202,10 @@ class Control:
     #: s, load measuring system's sample time minus the motor's (positive: load position
     #: older), -0.05..0.05; None: both sampled together
     sensor_time_offset: float | None = None
+    #: s, time constant of the drive's first-order low-pass on the measured motor speed (the
+    #: speed actual value the PI speed controller uses and the drive reports), 0..0.1;
+    #: None or 0: no filter. A controller setting like current_lag, not an effect.
+    speed_filter: float | None = None
 
     def __post_init__(self) -> None:
         _check_range("control.kv", self.kv, low=0.0, low_open=True, high=1e4)
@@ -217,6 +221,7 @@ class Control:
             "control.acceleration_feedforward", self.acceleration_feedforward, low=0.0, high=1e6
         )
         _check_range("control.sensor_time_offset", self.sensor_time_offset, low=-0.05, high=0.05)
+        _check_range("control.speed_filter", self.speed_filter, low=0.0, high=0.1)
         ratio = self.position_cycle / self.speed_cycle
         if abs(ratio - round(ratio)) > 1e-6 * ratio or round(ratio) < 1:
             raise _fail(

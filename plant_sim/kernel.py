@@ -22,11 +22,13 @@ chosen so that ω_r·dt <= 0.1 (plant_sim.model.MAX_OMEGA_DT); ``tests/test_kern
 step-halving convergence.
 
 Control (sampled as in a drive): every speed cycle the motor speed is measured as the backward
-difference of the motor encoder, the PI speed controller (k_sp, T_si, clamping anti-windup at the
-torque limit) computes the torque set point, which passes an optional dead time (whole speed
-cycles) and the current loop (ideal or first-order lag). Every position cycle the P position
-controller (eq. 7) and the paper's vibration detector and speed regulator (Fig. 5, eq. 15, from
-:mod:`regulator.core`, compiled here) compute the speed set point.
+difference of the motor encoder and passes the drive's optional first-order speed filter
+(``control.speed_filter``, exact at the speed cycle), the PI speed controller (k_sp, T_si,
+clamping anti-windup at the torque limit) computes the torque set point, which passes an
+optional dead time (whole speed cycles) and the current loop (ideal or first-order lag).
+Every position cycle the P position controller (eq. 7) and the paper's vibration detector and
+speed regulator (Fig. 5, eq. 15, from :mod:`regulator.core`, compiled here) compute the speed
+set point.
 
 All arrays are float64; the layouts are the ``P_*``, ``S_*`` and ``O_*`` index constants.
 """
@@ -96,8 +98,9 @@ position_command = _inline(_core.position_command)
     P_OFS_FRAC,  # fraction of a speed cycle on top of P_OFS_N
     P_HIST_LEN,  # ring-buffer length in use (>= P_OFS_N + 2)
     P_V_CREEP,  # load units/s, creep speed of a regularised friction law (0: set-valued)
+    P_SPD_ALPHA,  # exp(-T_sc / speed_filter): speed-measurement filter pole (0: no filter)
     N_PARAMS,
-) = range(46)
+) = range(47)
 
 # --- state vector --------------------------------------------------------------------------
 MAX_DELAY = 2048  # speed cycles of dead time the ring buffer holds
@@ -111,7 +114,7 @@ MAX_HIST = 2048  # speed-cycle samples of sensor history (sensor_time_offset)
     S_TAU,  # N m, motor torque (current loop output)
     S_TAU_CMD,  # N m, torque set point after the dead time
     S_TH_PREV,  # rad, motor encoder at the previous speed sample
-    S_OM_MEAS,  # rad/s, measured motor speed (drive's actual value)
+    S_OM_MEAS,  # rad/s, measured motor speed (drive's actual value, after its filter)
     S_T,  # s, simulated time
     S_SP_PENDING,  # rad/s, set point waiting for the next position cycle
     S_DLY_IDX,  # index into the dead-time ring buffer
@@ -268,7 +271,16 @@ def substep(p: np.ndarray, st: np.ndarray, tau: float, f_dist: float, dt: float)
 
 @_inline
 def _measure_speed(p: np.ndarray, st: np.ndarray) -> None:
-    st[S_OM_MEAS] = (st[S_TH] - st[S_TH_PREV]) / p[P_TSC]
+    """The drive's speed actual value: backward difference of the motor encoder over the
+    speed cycle, then the optional first-order low-pass (``control.speed_filter`` = T_f).
+    The filter is discretised exactly for its input held over the cycle (the difference is
+    the cycle's mean speed): y_k = u_k + a·(y_{k−1} − u_k), a = exp(−T_sc/T_f), which is the
+    continuous filter's response sampled at the cycle instants; its state is ``S_OM_MEAS``."""
+    raw = (st[S_TH] - st[S_TH_PREV]) / p[P_TSC]
+    a = p[P_SPD_ALPHA]
+    if a != 0.0:
+        raw += a * (st[S_OM_MEAS] - raw)
+    st[S_OM_MEAS] = raw
     st[S_TH_PREV] = st[S_TH]
 
 

@@ -119,6 +119,7 @@ def build_params(
     p[K.P_LAG_MEAN] = (
         1.0 - c.current_lag / dt_sub * (1.0 - p[K.P_LAG_ALPHA]) if c.current_lag else 1.0
     )
+    p[K.P_SPD_ALPHA] = math.exp(-c.speed_cycle / c.speed_filter) if c.speed_filter else 0.0
     n_delay = round((c.delay or 0.0) / c.speed_cycle)
     if n_delay > K.MAX_DELAY:
         raise ScenarioError(
@@ -244,8 +245,9 @@ class AxisPlant:
 
     @property
     def motor_speed_rad_s(self) -> float:
-        """The drive's speed actual value (encoder difference over the last speed cycle),
-        shifted like :attr:`motor_position_rad`."""
+        """The drive's speed actual value (encoder difference over the last speed cycle,
+        through the ``control.speed_filter`` low-pass when the axis states one), shifted like
+        :attr:`motor_position_rad`."""
         return float(K.motor_speed_measured(self._p, self._st))
 
     @property

@@ -11,6 +11,9 @@ Two deliberate differences, both for runs in which the load does not stick:
   set-valued force); while the load moves both models are the same equations.
 - Dead time is not modelled (``control.delay`` must be absent or 0).
 
+The speed filter (``control.speed_filter``) is its ODE, integrated by solve_ivp over each
+speed cycle with the cycle's encoder difference as input.
+
 It is the benchmark's baseline (``python -m plant_sim bench``) and the second implementation
 the kernel is tested against (tests/test_kernel_reference.py).
 """
@@ -117,8 +120,21 @@ def simulate_reference(
             )
         )
         for _ in range(n_sc):
-            omega_meas = (y[0] - th_prev) / tsc
+            raw = (y[0] - th_prev) / tsc
             th_prev = y[0]
+            if c.speed_filter:
+                # the speed filter's ODE, T_f·dw/dt = u − w, integrated over the cycle whose
+                # mean speed u the encoder difference is
+                filt = solve_ivp(
+                    lambda _tt, w, u=raw: [(u - w[0]) / c.speed_filter],
+                    (0.0, tsc),
+                    [omega_meas],
+                    rtol=rtol,
+                    atol=1e-12,
+                )
+                omega_meas = float(filt.y[0, -1])
+            else:
+                omega_meas = raw
             err = omega_r - omega_meas
             if ki:
                 integ = integ + ki * err * tsc

@@ -32,7 +32,12 @@ def test_paper_axis_derived_values_follow_eq_2_to_4() -> None:
 
 def test_dump_and_load_round_trip(tmp_path: Path) -> None:
     axis = load_axis(CONFIG / "paper_axis.toml").with_values(
-        {"friction.stribeck": 0.5, "friction.stribeck_speed": 0.002, "control.delay": 0.0005}
+        {
+            "friction.stribeck": 0.5,
+            "friction.stribeck_speed": 0.002,
+            "control.delay": 0.0005,
+            "control.speed_filter": 5e-5,
+        }
     )
     path = tmp_path / "a.toml"
     path.write_text(dump_axis(axis, "fitted"))
@@ -79,6 +84,16 @@ BAD = [
     ("antiresonance = 600.0", "", "needs mechanics.antiresonance"),
     ("coulomb = 1.2", "coulomb = 1.2\nstribeck = 0.3", "go together"),
     ("viscous = 57.3", "viscous = nan", "friction.viscous"),
+    (
+        "kv = 25.0",
+        "kv = 25.0\nspeed_filter = -5e-5",
+        "control.speed_filter = -5e-05: allowed range [0, 0.1]",
+    ),
+    (
+        "kv = 25.0",
+        "kv = 25.0\nspeed_filter = 0.2",
+        "control.speed_filter = 0.2: allowed range [0, 0.1]",
+    ),
     ("[axis]", "[axis\n", "not valid TOML"),
 ]
 

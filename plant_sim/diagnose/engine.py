@@ -55,6 +55,7 @@ from .fit import (
     FitResult,
     FitSpec,
     Objective,
+    Parameter,
     fit,
     plain_floats,
     restart,
@@ -195,6 +196,7 @@ def _refit_nominal(ctx: Context) -> Base:
     found = suspects(refit, spec0.parameters, nominal)
     hold = [s.key for s in found if s.key not in (PERIODIC_COS, PERIODIC_SIN)]
     options_tried = [("the re-fit", refit, s_raw, l_raw)]
+    free = {"the nominal": (), "the re-fit": spec0.parameters}
     if hold:
         ctx.stage("re-fit with suspects at nominal")
         params = tuple(p for p in spec0.parameters if p.key not in hold)
@@ -204,9 +206,9 @@ def _refit_nominal(ctx: Context) -> Base:
         )
         constrained = fit(spec_c, obj, opts.max_nfev, 1, opts.seed, ctx.tick)
         s_con, l_con = scorer.score(constrained, len(params))
-        options_tried.append(
-            (f"the re-fit with {', '.join(hold)} at nominal", constrained, s_con, l_con)
-        )
+        name_c = f"the re-fit with {', '.join(hold)} at nominal"
+        options_tried.append((name_c, constrained, s_con, l_con))
+        free[name_c] = params
     name, best, s_best, l_best = min(options_tried, key=lambda o: o[2].cost)
     if s_nom.cost <= s_best.cost:
         decision = (
@@ -222,7 +224,7 @@ def _refit_nominal(ctx: Context) -> Base:
             f"({100.0 * (1.0 - s_best.cost / s_nom.cost):.1f} % below the nominal)"
         )
     kept = "the nominal" if best is nominal_fit else name
-    creep = _creep_option(ctx, obj, scorer, (kept, best, s_best, l_best))
+    creep = _creep_option(ctx, obj, scorer, (kept, best, s_best, l_best), free[kept])
     if creep is not None and creep[2].cost < s_best.cost:
         decision += (
             f"; the friction law: {creep[0]} (creep speed "
@@ -244,14 +246,19 @@ def _creep_option(
     obj: Objective,
     scorer: Scorer,
     on: tuple[str, FitResult, Score, np.ndarray],
+    free: Sequence[Parameter],
 ) -> tuple[str, FitResult, Score, np.ndarray] | None:
     """The friction law is part of the model's form, not of a data sheet: a set-valued
     Coulomb/Stribeck law (stiction) or one regularised below a creep speed (pre-sliding
     creep, ``friction.creep_speed``). When the nominal has sign-law friction and no creep
     speed, the creep speed is fitted alone on the model kept so far (the nominal as given or
     its re-fit, whichever has the lower held-out cost; starts over three decades of
-    :data:`.parameters.CREEP_RANGE`); it becomes the base only if it lowers the held-out
-    cost, like every other parameter change."""
+    :data:`.parameters.CREEP_RANGE`), then jointly with ``free``, the parameters that model
+    re-fitted (none for the nominal as given): every candidate is later fitted jointly with
+    those parameters, so a base left at the creep speed's partial optimum would credit each
+    candidate with the rest of the base's own fit (equal terms, as after naming an effect).
+    It becomes the base only if it lowers the held-out cost, like every other parameter
+    change."""
     nominal, sc = ctx.nominal, ctx.scales
     fr = nominal.friction
     if fr.creep_speed is not None or not ((fr.coulomb or 0.0) > 0.0 or fr.stribeck):
@@ -270,6 +277,11 @@ def _creep_option(
     )
     res = fit(spec, obj, SCREEN_NFEV, 2, ctx.options.seed, ctx.tick)
     res = replace(res, values={**base_fit.values, **res.values})
+    if free:
+        joint_spec = restart(FitSpec(res.axis, (*free, par), options=base_fit.options), res.values)
+        joint = fit(joint_spec, obj, ctx.options.max_nfev, 1, ctx.options.seed, ctx.tick)
+        if joint.cost < res.cost:
+            res = replace(joint, values={**res.values, **joint.values})
     score, loss = scorer.score(res, s_on.n_free + 1)
     return (f"{name} with a creeping friction law", res, score, loss)
 

@@ -36,7 +36,8 @@ class PlantOptions:
 
     friction_smoothing: load units/s, tanh width of Coulomb friction (no stiction logic);
     contact_smoothing_fraction: penetration (as a fraction of the free play) over which the
-    contact damping engages; speed_filter_s: first-order filter on the encoder speed;
+    contact damping engages; speed_filter_s: first-order filter on the encoder speed (s) for
+    an axis file without ``control.speed_filter`` (a file that states it sets it);
     motor_counts_per_rev / load_resolution: sensor quantisation (0: exact);
     current_loop_per_speed_cycle: current-loop samples per speed cycle (PI current loop on an
     R-L winding of electrical time constant ``electrical_time_s``, tuned for the axis file's
@@ -128,7 +129,8 @@ def parameters(axis: AxisConfig, options: PlantOptions = PlantOptions()) -> np.n
     if n_delay >= C.DELAY_RING:
         raise ValueError(f"control.delay = {c.delay} s: at most {C.DELAY_RING - 1} samples")
     q[C.Q_DELAY_N] = n_delay
-    q[C.Q_SPEED_FILTER] = options.speed_filter_s
+    # the drive's speed filter: the axis file's setting when it states one, else this plant's
+    q[C.Q_SPEED_FILTER] = options.speed_filter_s if c.speed_filter is None else c.speed_filter
     if options.motor_counts_per_rev > 0:
         q[C.Q_MOTOR_QUANTUM] = 2.0 * math.pi / options.motor_counts_per_rev
     if axis.kind is AxisKind.LINEAR:

@@ -10,7 +10,9 @@ off), but the hidden truth runs on this package's plant and the noise is its own
   low-pass at 300 Hz (current sensor and PWM ripple after the drive's filter), the speed
   noise the same at 400 Hz, each scaled to the family's standard deviation; positions carry
   the sensors' quantisation plus a small white noise (interpolation error of the scale);
-* the references come from a separate random stream (seed + 7919).
+* the references come from a separate random stream (seed + 7919);
+* the plant's speed filter (a drive setting, :class:`PlantOptions`.speed_filter_s) is written
+  into the truth and the nominal file as ``control.speed_filter``, exactly.
 """
 
 from __future__ import annotations
@@ -71,7 +73,10 @@ def generate(case: Case) -> GeneratedCase:
     n = len(position)
     process = process_torque(fam.noise.process_nm, n, cycle, rng)
     refs = References(refs0.position, refs0.speed, process)
-    truth, truth_without = hidden_axes(case, refs, simulator)
+    # the drive's speed filter is a setting the user made, so the axis files state it exactly
+    # (the plant simulates with it either way: it is the plant's default)
+    drive = {"control.speed_filter": PlantOptions().speed_filter_s}
+    truth, truth_without = (a.with_values(drive) for a in hidden_axes(case, refs, simulator))
     nominal = _perturb(truth_without, rng)
     cols = recorded_columns(simulator(truth, refs))
     m = len(cols["time"])
