@@ -122,7 +122,9 @@ def test_lockstep_frames_and_trace_are_those_of_the_stepped_loop(
     frames, columns = stepped(enabled, refs)
     logged = logged_cycle_frames(tmp_path / "bus.log")
     assert len(logged) == len(frames) == 4 * refs.position.size
-    first_difference = next((i for i, (a, b) in enumerate(zip(logged, frames)) if a != b), None)
+    first_difference = next(
+        (i for i, (a, b) in enumerate(zip(logged, frames, strict=True)) if a != b), None
+    )
     assert first_difference is None, (
         f"cycle {first_difference // 4}: logged {logged[first_difference]}, "
         f"stepped {frames[first_difference]}"
