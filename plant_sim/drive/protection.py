@@ -151,10 +151,11 @@ class SetpointWatchdog:
         return False
 
 
-def encoder_discrepancy(plant: AxisPlant) -> float:
-    """Load scale minus motor encoder in load units (m or rad): x_l − θ_m / k_r. The paper's
-    section II.B: the two measuring systems must agree within about 0.5 mm or 0.5°."""
-    return plant.load_position - plant.motor_position_rad / plant.axis.transmission_ratio
+def discrepancy(motor_position_rad: float, load_position: float, ratio: float) -> float:
+    """Load scale minus motor encoder in load units (m or rad): x_l − θ_m / k_r, k_r the
+    transmission ratio (motor rad per load unit). The paper's section II.B: the two measuring
+    systems must agree within about 0.5 mm or 0.5°."""
+    return load_position - motor_position_rad / ratio
 
 
 def axis_torque_limit_nm(plant: AxisPlant) -> float:

@@ -54,8 +54,8 @@ from .protection import (
     SetpointWatchdog,
     apply_torque_limit,
     axis_torque_limit_nm,
+    discrepancy,
     emcy_data_int32,
-    encoder_discrepancy,
     setpoint_timeout_data,
 )
 
@@ -100,6 +100,8 @@ class ServoAxis:
         self._ramp_done = False
         self._last_setpoint_rad_s = 0.0  # for the acceleration feed-forward
         self._fault_codes: set[int] = set()
+        #: the measurements of this SYNC while the plant stands still (hold_measurements)
+        self._held: tuple[float, float, float, float] | None = None
         self._set_axis_defaults()
         self._attach_objects()
         self.apply_torque_limit()
@@ -129,21 +131,23 @@ class ServoAxis:
         t.set_default(O.ENCODER_TOLERANCE, round(tolerance))
 
     def _attach_objects(self) -> None:
-        t, p, kind = self._table, self.plant, self.axis.kind
+        t, kind, measured = self._table, self.axis.kind, self._measured
+        ratio = self.plant.axis.transmission_ratio
         t.on(O.ERROR_REGISTER, read=lambda: self._errors.register)
         t.on(O.ERROR_CODE, read=lambda: self._errors.error_code)
         t.on(O.STATUSWORD, read=self.statusword)
         t.on(O.MODES_OF_OPERATION_DISPLAY, read=lambda: t.value(O.MODES_OF_OPERATION))
-        t.on(O.POSITION_ACTUAL, read=lambda: O.motor_position_increments(p.motor_position_rad))
-        t.on(O.VELOCITY_ACTUAL, read=lambda: O.motor_speed_increments_s(p.motor_speed_rad_s))
+        # measured(): motor position (rad), load position, motor speed (rad/s), torque (N·m)
+        t.on(O.POSITION_ACTUAL, read=lambda: O.motor_position_increments(measured()[0]))
+        t.on(O.VELOCITY_ACTUAL, read=lambda: O.motor_speed_increments_s(measured()[2]))
         t.on(
             O.TORQUE_ACTUAL,
-            read=lambda: O.torque_permille(p.motor_torque_nm, t.value(O.RATED_TORQUE)),
+            read=lambda: O.torque_permille(measured()[3], t.value(O.RATED_TORQUE)),
         )
-        t.on(O.LOAD_POSITION_ACTUAL, read=lambda: O.load_position_units(p.load_position, kind))
+        t.on(O.LOAD_POSITION_ACTUAL, read=lambda: O.load_position_units(measured()[1], kind))
         t.on(
             O.LOAD_MINUS_MOTOR,
-            read=lambda: O.load_difference_units(encoder_discrepancy(p), kind),
+            read=lambda: O.load_difference_units(discrepancy(*measured()[:2], ratio), kind),
         )
         t.on(O.CONTROLWORD, changed=self._controlword_changed)
         t.on(O.MODES_OF_OPERATION, validate=self._check_mode)
@@ -166,6 +170,27 @@ class ServoAxis:
                 f"quick stop option code {value} not supported; allowed {QUICK_STOP_CODES}",
                 key=O.QUICK_STOP_OPTION,
             )
+
+    # --- measurements --------------------------------------------------------------------------
+    def _measured(self) -> tuple[float, float, float, float]:
+        """Motor position (rad), load position (load units), motor speed (rad/s), torque
+        (N·m): the ones held for this SYNC, else read from the plant now."""
+        held = self._held
+        if held is not None:
+            return held
+        p = self.plant
+        return (p.motor_position_rad, p.load_position, p.motor_speed_rad_s, p.motor_torque_nm)
+
+    def hold_measurements(self) -> None:
+        """From the RPDO latch to the physics step of a SYNC the plant does not move: read its
+        measuring systems once (each a call into the compiled kernel) for the supervision, the
+        statusword and the TPDOs, instead of once per use. Ended by :meth:`release_measurements`
+        (before the plant advances)."""
+        self._held = None
+        self._held = self._measured()
+
+    def release_measurements(self) -> None:
+        self._held = None
 
     # --- state ---------------------------------------------------------------------------------
     @property
@@ -196,8 +221,9 @@ class ServoAxis:
             word |= SW_VOLTAGE_ENABLED
         if state is S.OPERATION_ENABLED:
             word |= SW_FOLLOWS_COMMAND
-        at_limit = abs(self.plant.motor_torque_nm) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
-        if state in _DRIVING and at_limit:
+        if state in _DRIVING and (
+            abs(self._measured()[3]) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
+        ):
             word |= SW_INTERNAL_LIMIT
         if self._errors.active and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
             word |= SW_WARNING
@@ -233,7 +259,7 @@ class ServoAxis:
             self.watchdog.reset()
         if self.sm.state not in (S.FAULT_REACTION_ACTIVE, S.FAULT) and not self._encoder_ok():
             self._fault(EMCY_SENSOR, emcy_data_int32(t.read(O.LOAD_MINUS_MOTOR)))
-        standstill = abs(self.plant.motor_speed_rad_s) <= self.config.standstill_rad_s
+        standstill = abs(self._measured()[2]) <= self.config.standstill_rad_s
         if self._ramp_done and standstill:
             if self.sm.state is S.QUICK_STOP_ACTIVE and t.value(O.QUICK_STOP_OPTION) in (1, 2):
                 self._take(self.sm.event(Event.QUICK_STOP_COMPLETED))
