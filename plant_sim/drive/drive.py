@@ -433,13 +433,10 @@ class SimulatedDrive:
                     for can_id in result.short_frames:
                         self.guard.refuse(FrameFault.BAD_LENGTH, can_id, -1)
             servo = self._servo
-            servo.hold_measurements()  # the plant stands still until advance()
-            try:
-                servo.supervise(self._rpdo_seen)
-                if operational:
-                    self._pdo.transmit()
-            finally:
-                servo.release_measurements()
+            servo.hold_measurements()  # read after the last step (the first SYNC: now)
+            servo.supervise(self._rpdo_seen)
+            if operational:
+                self._pdo.transmit()
             servo.advance()
             self._sync_count += 1
             self._heartbeat.tick(self._sync_count * self._cycle_us)

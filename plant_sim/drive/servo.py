@@ -100,7 +100,7 @@ class ServoAxis:
         self._ramp_done = False
         self._last_setpoint_rad_s = 0.0  # for the acceleration feed-forward
         self._fault_codes: set[int] = set()
-        #: the measurements of this SYNC while the plant stands still (hold_measurements)
+        #: the plant's readings since its last step (hold_measurements)
         self._held: tuple[float, float, float, float] | None = None
         self._set_axis_defaults()
         self._attach_objects()
@@ -172,25 +172,24 @@ class ServoAxis:
             )
 
     # --- measurements --------------------------------------------------------------------------
-    def _measured(self) -> tuple[float, float, float, float]:
-        """Motor position (rad), load position (load units), motor speed (rad/s), torque
-        (N·m): the ones held for this SYNC, else read from the plant now."""
-        held = self._held
-        if held is not None:
-            return held
+    def _read_plant(self) -> tuple[float, float, float, float]:
         p = self.plant
         return (p.motor_position_rad, p.load_position, p.motor_speed_rad_s, p.motor_torque_nm)
 
-    def hold_measurements(self) -> None:
-        """From the RPDO latch to the physics step of a SYNC the plant does not move: read its
-        measuring systems once (each a call into the compiled kernel) for the supervision, the
-        statusword and the TPDOs, instead of once per use. Ended by :meth:`release_measurements`
-        (before the plant advances)."""
-        self._held = None
-        self._held = self._measured()
+    def _measured(self) -> tuple[float, float, float, float]:
+        """Motor position (rad), load position (load units), motor speed (rad/s), torque
+        (N·m) of the plant as it stands (see :meth:`hold_measurements`)."""
+        held = self._held
+        return held if held is not None else self._read_plant()
 
-    def release_measurements(self) -> None:
-        self._held = None
+    def hold_measurements(self) -> None:
+        """The plant moves only in :meth:`advance`: its measuring systems are read once after
+        each step (each reading a call into the compiled kernel) and these readings serve the
+        supervision, the statusword, the TPDOs and SDO reads until the next step -- in real
+        time the readings are taken after the SYNC's TPDOs, not between the SYNC and them.
+        Called at a SYNC: reads the plant if nothing is held yet (the first SYNC)."""
+        if self._held is None:
+            self._held = self._read_plant()
 
     # --- state ---------------------------------------------------------------------------------
     @property
@@ -267,7 +266,13 @@ class ServoAxis:
                 self._take(self.sm.event(Event.FAULT_REACTION_COMPLETED))
 
     def advance(self) -> None:
-        """Run the plant one position cycle as the state says (see the module docstring)."""
+        """Run the plant one position cycle as the state says (see the module docstring),
+        then read its measuring systems for the next SYNC (:meth:`hold_measurements`)."""
+        self._held = None
+        self._step_plant()
+        self._held = self._read_plant()
+
+    def _step_plant(self) -> None:
         p, t = self.plant, self._table
         disturbance_nm = t.value(O.DISTURBANCE) / 1000.0
         state = self.sm.state
