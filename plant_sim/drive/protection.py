@@ -76,6 +76,10 @@ class ErrorList:
         return tuple(self._active)
 
     @property
+    def any_active(self) -> bool:
+        return bool(self._active)
+
+    @property
     def error_code(self) -> int:
         """603Fh: the most recent active error, 0 if none."""
         return self._active[-1] if self._active else EMCY_NO_ERROR

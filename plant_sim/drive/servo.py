@@ -74,6 +74,19 @@ QUICK_STOP_CODES = (0, 1, 2, 5, 6)  # 605Ah values the drive implements
 _FRACTION_AT_LIMIT = 0.999  # |torque| >= this * limit sets statusword bit 11
 
 
+def _state_word(state: State402) -> int:
+    """The statusword bits ``state`` alone sets: its pattern, remote (9), voltage enabled (4),
+    drive follows the command value (12)."""
+    word = status_bits(state)
+    if state is not S.NOT_READY_TO_SWITCH_ON:
+        word |= SW_REMOTE
+    if state in _POWERED:
+        word |= SW_VOLTAGE_ENABLED
+    if state is S.OPERATION_ENABLED:
+        word |= SW_FOLLOWS_COMMAND
+    return word
+
+
 class ServoAxis:
     """State machine, supervision and power stage of the drive on ``plant``.
 
@@ -102,6 +115,9 @@ class ServoAxis:
         self._fault_codes: set[int] = set()
         #: the plant's readings since its last step (hold_measurements)
         self._held: tuple[float, float, float, float] | None = None
+        self._axis_limit_nm = axis_torque_limit_nm(plant)  # the axis file's, fixed
+        self._word_state: State402 | None = None  # statusword(): state of _state_word
+        self._state_word = 0
         self._set_axis_defaults()
         self._attach_objects()
         self.apply_torque_limit()
@@ -201,7 +217,7 @@ class ServoAxis:
         """The torque limit in force: min(axis file limit, 6072h · 6076h)."""
         t = self._table
         return min(
-            axis_torque_limit_nm(self.plant),
+            self._axis_limit_nm,
             O.torque_limit_nm(t.value(O.MAX_TORQUE), t.value(O.RATED_TORQUE)),
         )
 
@@ -213,18 +229,14 @@ class ServoAxis:
         active outside Fault), remote (9), internal limit active (11: torque at the limit),
         drive follows the command value (12: Operation enabled)."""
         state = self.sm.state
-        word = status_bits(state)
-        if state is not S.NOT_READY_TO_SWITCH_ON:
-            word |= SW_REMOTE
-        if state in _POWERED:
-            word |= SW_VOLTAGE_ENABLED
-        if state is S.OPERATION_ENABLED:
-            word |= SW_FOLLOWS_COMMAND
+        if state is not self._word_state:  # the bits of the state alone, kept per state
+            self._word_state, self._state_word = state, _state_word(state)
+        word = self._state_word
         if state in _DRIVING and (
             abs(self._measured()[3]) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
         ):
             word |= SW_INTERNAL_LIMIT
-        if self._errors.active and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
+        if self._errors.any_active and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
             word |= SW_WARNING
         return word
 
