@@ -1,9 +1,10 @@
 """``python -m bridge bench``: throughput in lockstep, latency in real time.
 
 Lockstep: the paper's section X (regulated) through the full stack -- the bridge's loop,
-python-can's virtual bus, the simulated drive with its PDO engine and physics (receiving in
-the loop's thread) -- once without recording and once with the trace file and the candump
-log; control cycles per second of wall time and CPU time per cycle.
+python-can's virtual bus (:class:`virtual_bus.inprocess.InProcessBus`), the simulated drive
+with its PDO engine and physics (receiving in the loop's thread) -- once without recording
+and once with the trace file and the candump log; control cycles per second of wall time and
+CPU time per cycle.
 
 Real time (:mod:`bridge.bench_realtime`): SYNC from the wall clock at ``rate_hz`` for
 ``seconds`` with the simulated drive in its own process (as root: udp_multicast in a private

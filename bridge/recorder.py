@@ -179,6 +179,8 @@ class BusLog:
                 "spaces (a Linux interface name, as candump writes it)"
             )
         self.channel = channel
+        # the channel as CanutilsLogWriter writes it (a number n becomes "can<n>")
+        self._line_channel = f"can{channel}" if channel.isdigit() else channel
         self._writer = can.CanutilsLogWriter(str(path), channel=channel)
         self._now = clock
         self._lock = threading.Lock()
@@ -188,10 +190,28 @@ class BusLog:
 
     def log(self, msg: can.Message, received: bool) -> None:
         msg.is_rx = received
-        msg.timestamp = self._now()
+        msg.timestamp = timestamp = self._now()
         msg.channel = self.channel
         with self._lock:
-            self._writer.on_message_received(msg)
+            writer = self._writer
+            if (
+                msg.is_error_frame
+                or msg.is_extended_id
+                or msg.is_remote_frame
+                or msg.is_fd
+                or writer.last_timestamp is None
+            ):
+                writer.on_message_received(msg)
+            else:
+                # CanutilsLogWriter.on_message_received's line for a standard data frame,
+                # written here without its general case (tests/test_bridge_recorder.py
+                # checks the file byte for byte against python-can's writer)
+                if timestamp < writer.last_timestamp:
+                    timestamp = writer.last_timestamp
+                writer.file.write(
+                    f"({timestamp:f}) {self._line_channel} {msg.arbitration_id:03X}#"
+                    f"{msg.data.hex().upper()}{' R' if received else ' T'}\n"
+                )
             self.frames += 1
             self._pending += 1
             if self._pending >= self._flush_every:

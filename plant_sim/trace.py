@@ -122,7 +122,7 @@ class TraceWriter:
             raise TraceFileError(
                 f"row has {len(values)} values, the trace {len(self.columns)} columns"
             )
-        self._lines.append(self._fmt % tuple(float(v) for v in values))
+        self._lines.append(self._fmt % tuple(map(float, values)))
         if len(self._lines) >= self._flush_every:
             self.flush()
 

@@ -1,6 +1,7 @@
 """The regulator's algorithm as plain, numba-compilable functions (paper sections VII, VIII).
 
-Everything here takes only floats, ints and float64 numpy state arrays and uses only
+Everything here takes only floats, ints and float64 numpy state arrays (the Python classes
+keep the detector state in a list of floats, faster element by element) and uses only
 :mod:`math`, so that the simulator can compile it with ``numba.njit`` (nopython mode) and call
 it from its compiled kernel, while the Python classes (:mod:`regulator.detector`,
 :mod:`regulator.speed_regulator`) call the very same functions uncompiled. No exceptions, no
@@ -82,7 +83,12 @@ def detector_reset(state: np.ndarray) -> None:
 
 
 def detector_step(
-    state: np.ndarray, n: int, cycle_s: float, tv_s: float, tf_s: float, u_rad_s: float
+    state: np.ndarray | list[float],
+    n: int,
+    cycle_s: float,
+    tv_s: float,
+    tf_s: float,
+    u_rad_s: float,
 ) -> float:
     """Feed one input ``u = omega_s - omega_c`` (rad/s) and return beta (rad/s) after it.
 
@@ -142,12 +148,12 @@ def detector_step(
     return beta
 
 
-def detector_beta(state: np.ndarray) -> float:
+def detector_beta(state: np.ndarray | list[float]) -> float:
     """Vibration level beta (rad/s) stored in a detector state."""
     return state[_I_BETA]
 
 
-def detector_holder_output(state: np.ndarray) -> float:
+def detector_holder_output(state: np.ndarray | list[float]) -> float:
     """Holder output y (rad/s) after the last step (before the low pass)."""
     return state[_I_HOLDER_OUT]
 

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from . import core
 from .errors import require_finite_input, require_int_at_least, require_positive
 
@@ -47,7 +45,11 @@ class VibrationDetector:
         self._cycle_s = float(config.cycle_s)
         self._tv_s = float(config.tv_s)
         self._tf_s = float(config.tf_s)
-        self._state = np.zeros(core.detector_state_size(self._n), dtype=np.float64)
+        # a list of Python floats, not a float64 array: core.detector_step reads and writes
+        # it element by element, and a numpy scalar costs about twice a float per operation
+        # (same IEEE binary64 arithmetic, so the same bits; tests/test_regulator_detector.py
+        # checks them against the function compiled by numba as the simulator runs it)
+        self._state = [0.0] * core.detector_state_size(self._n)
 
     @property
     def config(self) -> DetectorConfig:
@@ -67,7 +69,7 @@ class VibrationDetector:
 
     def reset(self) -> None:
         """Forget all inputs: empty window, nothing held, beta = 0."""
-        core.detector_reset(self._state)
+        self._state[:] = [0.0] * len(self._state)  # core.detector_reset of the list
 
     @property
     def vibration_level(self) -> float:

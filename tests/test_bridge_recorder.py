@@ -3,6 +3,7 @@ log (read back by python-can's reader), both flushed while the recording runs.""
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import can
@@ -80,3 +81,37 @@ def test_bus_log_is_candump_format_and_flushed(tmp_path: Path) -> None:
     assert [(f.timestamp, f.arbitration_id, bytes(f.data), f.is_rx) for f in frames] == [
         (pytest.approx(t), i, d, rx) for t, i, d, rx in sent
     ]
+
+
+@pytest.mark.parametrize("channel", ["vcan0", "sim-0123456789a", "7"])
+def test_bus_log_file_is_python_cans_byte_for_byte(tmp_path: Path, channel: str) -> None:
+    """BusLog writes the common frame itself (a shorter path); the file must be the one
+    python-can's CanutilsLogWriter writes for the same frames and timestamps: standard,
+    extended, remote, error and FD frames, a clock that steps back, both directions."""
+    frames = [
+        can.Message(arbitration_id=0x80, data=b"", is_extended_id=False),
+        can.Message(arbitration_id=0x182, data=bytes(range(8)), is_extended_id=False),
+        can.Message(arbitration_id=0x1ABCDEF0, data=b"\xaa\x0b", is_extended_id=True),
+        can.Message(arbitration_id=0x602, is_remote_frame=True, dlc=8, is_extended_id=False),
+        can.Message(is_error_frame=True, arbitration_id=0x20000004, data=bytes(8)),
+        can.Message(arbitration_id=0x123, data=bytes(range(12)), is_fd=True, bitrate_switch=True),
+        can.Message(arbitration_id=0x7FF, data=b"\xff\x00", is_extended_id=False),
+        can.Message(arbitration_id=0x202, data=b"\x0f\x00\x10\x27\x00\x00", is_extended_id=False),
+    ]
+    # the first frame's instant; one step back (written as the first instant); on
+    clock = [1700000000.25, 1700000000.5, 1700000000.125, 1700000001.0000005, 12.0]
+    times = [clock[k % len(clock)] for k in range(3 * len(frames))]
+    ours = tmp_path / "ours.log"
+    reference = tmp_path / "python-can.log"
+    it = iter(times)
+    log = BusLog(ours, lambda: next(it), channel=channel, flush_every=4)
+    writer = can.CanutilsLogWriter(str(reference), channel=channel)
+    for k in range(3 * len(frames)):
+        msg, received = frames[k % len(frames)], bool(k % 2)
+        log.log(msg, received=received)
+        expected = copy.copy(msg)
+        expected.is_rx, expected.timestamp, expected.channel = received, times[k], channel
+        writer.on_message_received(expected)
+    log.close()
+    writer.stop()
+    assert ours.read_bytes() == reference.read_bytes()

@@ -16,6 +16,7 @@ import can
 
 from virtual_bus.config import BusConfig, Interface
 from virtual_bus.errors import BusUnavailableError, InterfaceUnavailableError, Missing
+from virtual_bus.inprocess import InProcessBus
 from virtual_bus.netns import UDP_GROUP
 from virtual_bus.udp import LoopbackUdpBus
 from virtual_bus.vcan import DEFAULT_VCAN_CHANNEL, HostProbe, LinkKind
@@ -106,10 +107,14 @@ def open_bus(config: BusConfig, probe: HostProbe = _SYSTEM_PROBE) -> can.BusABC:
     """Open the bus ``config`` asks for (see :func:`resolve`); the caller shuts it down.
 
     python-can's config files and environment are *not* merged in here (``ignore_config``);
-    use :meth:`BusConfig.from_python_can_config` to honour them explicitly.
+    use :meth:`BusConfig.from_python_can_config` to honour them explicitly. The virtual bus is
+    python-can's with a shorter path (:class:`virtual_bus.inprocess.InProcessBus`).
     """
     choice = resolve(config, probe)
-    if choice.interface is Interface.VIRTUAL or choice.interface is Interface.SOCKETCAN:
+    if choice.interface is Interface.VIRTUAL:
+        own = config.receive_own_messages
+        return InProcessBus(config.virtual_channel, receive_own_messages=own)
+    if choice.interface is Interface.SOCKETCAN:
         return can.Bus(
             channel=choice.channel,
             interface=choice.python_can_interface,

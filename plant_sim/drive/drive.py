@@ -432,10 +432,12 @@ class SimulatedDrive:
                     self._errors.set(EMCY_PDO_LENGTH, emcy_data_int32(result.short_frames[0]))
                     for can_id in result.short_frames:
                         self.guard.refuse(FrameFault.BAD_LENGTH, can_id, -1)
-            self._servo.supervise(self._rpdo_seen)
+            servo = self._servo
+            servo.hold_measurements()  # read after the last step (the first SYNC: now)
+            servo.supervise(self._rpdo_seen)
             if operational:
                 self._pdo.transmit()
-            self._servo.advance()
+            servo.advance()
             self._sync_count += 1
             self._heartbeat.tick(self._sync_count * self._cycle_us)
 

@@ -166,6 +166,7 @@ class PdoEngine:
         self._rx = [_Channel(PdoKind.RECEIVE, n + 1) for n in range(PDO_CHANNELS)]
         self._tx = [_Channel(PdoKind.TRANSMIT, n + 1) for n in range(PDO_CHANNELS)]
         self._subscribed: dict[int, _Channel] = {}
+        self._rpdo_ids: frozenset[int] = frozenset()  # keys of _subscribed, for the guard
         self._pending: dict[int, bytes] = {}  # RPDO number -> data received since last SYNC
         self._tx_plans: tuple[_Plan, ...] | None = None
         self._rx_plans: dict[int, _Plan] | None = None
@@ -383,15 +384,17 @@ class PdoEngine:
             if can_id not in self._subscribed:
                 self._subscriber.subscribe(can_id, self._on_frame)
                 self._subscribed[can_id] = ch
+        self._rpdo_ids = frozenset(self._subscribed)
 
     def rpdo_cob_ids(self) -> frozenset[int]:
         """CAN ids of the valid RPDOs (subscribed)."""
-        return frozenset(self._subscribed)
+        return self._rpdo_ids
 
     def unsubscribe_all(self) -> None:
         for can_id in list(self._subscribed):
             self._subscriber.unsubscribe(can_id, self._on_frame)
         self._subscribed.clear()
+        self._rpdo_ids = frozenset()
 
     def reset(self) -> None:
         """After a communication reset: counters, pending data and subscriptions anew."""
@@ -426,7 +429,7 @@ class PdoEngine:
         plans = self._rx_plans
         assert plans is not None
         write = self._table.write
-        for number, data in sorted(pending.items()):
+        for number, data in sorted(pending.items()) if len(pending) > 1 else pending.items():
             plan = plans.get(number)
             if plan is None:
                 continue

@@ -76,6 +76,10 @@ class ErrorList:
         return tuple(self._active)
 
     @property
+    def any_active(self) -> bool:
+        return bool(self._active)
+
+    @property
     def error_code(self) -> int:
         """603Fh: the most recent active error, 0 if none."""
         return self._active[-1] if self._active else EMCY_NO_ERROR
@@ -151,10 +155,11 @@ class SetpointWatchdog:
         return False
 
 
-def encoder_discrepancy(plant: AxisPlant) -> float:
-    """Load scale minus motor encoder in load units (m or rad): x_l − θ_m / k_r. The paper's
-    section II.B: the two measuring systems must agree within about 0.5 mm or 0.5°."""
-    return plant.load_position - plant.motor_position_rad / plant.axis.transmission_ratio
+def discrepancy(motor_position_rad: float, load_position: float, ratio: float) -> float:
+    """Load scale minus motor encoder in load units (m or rad): x_l − θ_m / k_r, k_r the
+    transmission ratio (motor rad per load unit). The paper's section II.B: the two measuring
+    systems must agree within about 0.5 mm or 0.5°."""
+    return load_position - motor_position_rad / ratio
 
 
 def axis_torque_limit_nm(plant: AxisPlant) -> float:

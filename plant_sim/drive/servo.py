@@ -54,8 +54,8 @@ from .protection import (
     SetpointWatchdog,
     apply_torque_limit,
     axis_torque_limit_nm,
+    discrepancy,
     emcy_data_int32,
-    encoder_discrepancy,
     setpoint_timeout_data,
 )
 
@@ -72,6 +72,19 @@ _POWERED = (
 _DRIVING = (S.OPERATION_ENABLED, S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE)
 QUICK_STOP_CODES = (0, 1, 2, 5, 6)  # 605Ah values the drive implements
 _FRACTION_AT_LIMIT = 0.999  # |torque| >= this * limit sets statusword bit 11
+
+
+def _state_word(state: State402) -> int:
+    """The statusword bits ``state`` alone sets: its pattern, remote (9), voltage enabled (4),
+    drive follows the command value (12)."""
+    word = status_bits(state)
+    if state is not S.NOT_READY_TO_SWITCH_ON:
+        word |= SW_REMOTE
+    if state in _POWERED:
+        word |= SW_VOLTAGE_ENABLED
+    if state is S.OPERATION_ENABLED:
+        word |= SW_FOLLOWS_COMMAND
+    return word
 
 
 class ServoAxis:
@@ -100,6 +113,11 @@ class ServoAxis:
         self._ramp_done = False
         self._last_setpoint_rad_s = 0.0  # for the acceleration feed-forward
         self._fault_codes: set[int] = set()
+        #: the plant's readings since its last step (hold_measurements)
+        self._held: tuple[float, float, float, float] | None = None
+        self._axis_limit_nm = axis_torque_limit_nm(plant)  # the axis file's, fixed
+        self._word_state: State402 | None = None  # statusword(): state of _state_word
+        self._state_word = 0
         self._set_axis_defaults()
         self._attach_objects()
         self.apply_torque_limit()
@@ -129,21 +147,23 @@ class ServoAxis:
         t.set_default(O.ENCODER_TOLERANCE, round(tolerance))
 
     def _attach_objects(self) -> None:
-        t, p, kind = self._table, self.plant, self.axis.kind
+        t, kind, measured = self._table, self.axis.kind, self._measured
+        ratio = self.plant.axis.transmission_ratio
         t.on(O.ERROR_REGISTER, read=lambda: self._errors.register)
         t.on(O.ERROR_CODE, read=lambda: self._errors.error_code)
         t.on(O.STATUSWORD, read=self.statusword)
         t.on(O.MODES_OF_OPERATION_DISPLAY, read=lambda: t.value(O.MODES_OF_OPERATION))
-        t.on(O.POSITION_ACTUAL, read=lambda: O.motor_position_increments(p.motor_position_rad))
-        t.on(O.VELOCITY_ACTUAL, read=lambda: O.motor_speed_increments_s(p.motor_speed_rad_s))
+        # measured(): motor position (rad), load position, motor speed (rad/s), torque (N·m)
+        t.on(O.POSITION_ACTUAL, read=lambda: O.motor_position_increments(measured()[0]))
+        t.on(O.VELOCITY_ACTUAL, read=lambda: O.motor_speed_increments_s(measured()[2]))
         t.on(
             O.TORQUE_ACTUAL,
-            read=lambda: O.torque_permille(p.motor_torque_nm, t.value(O.RATED_TORQUE)),
+            read=lambda: O.torque_permille(measured()[3], t.value(O.RATED_TORQUE)),
         )
-        t.on(O.LOAD_POSITION_ACTUAL, read=lambda: O.load_position_units(p.load_position, kind))
+        t.on(O.LOAD_POSITION_ACTUAL, read=lambda: O.load_position_units(measured()[1], kind))
         t.on(
             O.LOAD_MINUS_MOTOR,
-            read=lambda: O.load_difference_units(encoder_discrepancy(p), kind),
+            read=lambda: O.load_difference_units(discrepancy(*measured()[:2], ratio), kind),
         )
         t.on(O.CONTROLWORD, changed=self._controlword_changed)
         t.on(O.MODES_OF_OPERATION, validate=self._check_mode)
@@ -167,6 +187,26 @@ class ServoAxis:
                 key=O.QUICK_STOP_OPTION,
             )
 
+    # --- measurements --------------------------------------------------------------------------
+    def _read_plant(self) -> tuple[float, float, float, float]:
+        p = self.plant
+        return (p.motor_position_rad, p.load_position, p.motor_speed_rad_s, p.motor_torque_nm)
+
+    def _measured(self) -> tuple[float, float, float, float]:
+        """Motor position (rad), load position (load units), motor speed (rad/s), torque
+        (N·m) of the plant as it stands (see :meth:`hold_measurements`)."""
+        held = self._held
+        return held if held is not None else self._read_plant()
+
+    def hold_measurements(self) -> None:
+        """The plant moves only in :meth:`advance`: its measuring systems are read once after
+        each step (each reading a call into the compiled kernel) and these readings serve the
+        supervision, the statusword, the TPDOs and SDO reads until the next step -- in real
+        time the readings are taken after the SYNC's TPDOs, not between the SYNC and them.
+        Called at a SYNC: reads the plant if nothing is held yet (the first SYNC)."""
+        if self._held is None:
+            self._held = self._read_plant()
+
     # --- state ---------------------------------------------------------------------------------
     @property
     def state(self) -> State402:
@@ -177,7 +217,7 @@ class ServoAxis:
         """The torque limit in force: min(axis file limit, 6072h · 6076h)."""
         t = self._table
         return min(
-            axis_torque_limit_nm(self.plant),
+            self._axis_limit_nm,
             O.torque_limit_nm(t.value(O.MAX_TORQUE), t.value(O.RATED_TORQUE)),
         )
 
@@ -189,17 +229,14 @@ class ServoAxis:
         active outside Fault), remote (9), internal limit active (11: torque at the limit),
         drive follows the command value (12: Operation enabled)."""
         state = self.sm.state
-        word = status_bits(state)
-        if state is not S.NOT_READY_TO_SWITCH_ON:
-            word |= SW_REMOTE
-        if state in _POWERED:
-            word |= SW_VOLTAGE_ENABLED
-        if state is S.OPERATION_ENABLED:
-            word |= SW_FOLLOWS_COMMAND
-        at_limit = abs(self.plant.motor_torque_nm) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
-        if state in _DRIVING and at_limit:
+        if state is not self._word_state:  # the bits of the state alone, kept per state
+            self._word_state, self._state_word = state, _state_word(state)
+        word = self._state_word
+        if state in _DRIVING and (
+            abs(self._measured()[3]) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
+        ):
             word |= SW_INTERNAL_LIMIT
-        if self._errors.active and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
+        if self._errors.any_active and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
             word |= SW_WARNING
         return word
 
@@ -233,7 +270,7 @@ class ServoAxis:
             self.watchdog.reset()
         if self.sm.state not in (S.FAULT_REACTION_ACTIVE, S.FAULT) and not self._encoder_ok():
             self._fault(EMCY_SENSOR, emcy_data_int32(t.read(O.LOAD_MINUS_MOTOR)))
-        standstill = abs(self.plant.motor_speed_rad_s) <= self.config.standstill_rad_s
+        standstill = abs(self._measured()[2]) <= self.config.standstill_rad_s
         if self._ramp_done and standstill:
             if self.sm.state is S.QUICK_STOP_ACTIVE and t.value(O.QUICK_STOP_OPTION) in (1, 2):
                 self._take(self.sm.event(Event.QUICK_STOP_COMPLETED))
@@ -241,7 +278,13 @@ class ServoAxis:
                 self._take(self.sm.event(Event.FAULT_REACTION_COMPLETED))
 
     def advance(self) -> None:
-        """Run the plant one position cycle as the state says (see the module docstring)."""
+        """Run the plant one position cycle as the state says (see the module docstring),
+        then read its measuring systems for the next SYNC (:meth:`hold_measurements`)."""
+        self._held = None
+        self._step_plant()
+        self._held = self._read_plant()
+
+    def _step_plant(self) -> None:
         p, t = self.plant, self._table
         disturbance_nm = t.value(O.DISTURBANCE) / 1000.0
         state = self.sm.state
