@@ -76,9 +76,9 @@ def detector_state_size(n: int) -> int:
     return _HEADER + n + 1
 
 
-def detector_reset(state: np.ndarray) -> None:
+def detector_reset(state: np.ndarray | list[float]) -> None:
     """Zero the whole detector state (no inputs seen, no held peak, beta = 0)."""
-    for i in range(state.shape[0]):
+    for i in range(len(state)):
         state[i] = 0.0
 
 

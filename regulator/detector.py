@@ -69,7 +69,7 @@ class VibrationDetector:
 
     def reset(self) -> None:
         """Forget all inputs: empty window, nothing held, beta = 0."""
-        self._state[:] = [0.0] * len(self._state)  # core.detector_reset of the list
+        core.detector_reset(self._state)
 
     @property
     def vibration_level(self) -> float:
