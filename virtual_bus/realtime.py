@@ -254,17 +254,23 @@ def cpu_number(text: str) -> int:
     return _integer(text, 0, None, "a CPU number is >= 0")
 
 
-def realtime_options(args: argparse.Namespace) -> RealTimeOptions:
-    """The real-time options of :func:`add_realtime_options` as :class:`RealTimeOptions`;
-    a CPU this process may not use is refused here (RealTimeRefused, exit 1), before any
-    work starts."""
-    cpu = args.cpu
-    if cpu is not None and hasattr(os, "sched_getaffinity"):
+def check_cpu(cpu: int) -> None:
+    """Refuse (RealTimeRefused, exit 1) a ``--cpu`` this process may not use."""
+    if hasattr(os, "sched_getaffinity"):
         allowed = sorted(os.sched_getaffinity(0))
         if cpu not in allowed:
             raise RealTimeRefused(
                 f"--cpu {cpu}: not a CPU this process may use; allowed {allowed}", setting="cpu"
             )
+
+
+def realtime_options(args: argparse.Namespace) -> RealTimeOptions:
+    """The real-time options of :func:`add_realtime_options` as :class:`RealTimeOptions`;
+    a CPU this process may not use is refused here (RealTimeRefused, exit 1), before any
+    work starts."""
+    cpu = args.cpu
+    if cpu is not None:
+        check_cpu(cpu)
     return RealTimeOptions(
         rt_priority=args.rt_priority,
         cpu=cpu,

@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
 from virtual_bus import cli
 from virtual_bus.errors import RealTimeRefused
-from virtual_bus.realtime import cpu_number
+from virtual_bus.realtime import check_cpu, cpu_number
 
 NAME = "host-latency"
 HELP = "the host's wake-up latency floor for a real-time loop, measured by cyclictest"
@@ -48,11 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from ..bench_realtime import host_steal_s
     from ..host_latency import HostLatencyError, json_doc, measure
 
-    if args.cpu not in os.sched_getaffinity(0):
-        raise RealTimeRefused(
-            f"--cpu {args.cpu}: this process may use CPUs {sorted(os.sched_getaffinity(0))}",
-            setting="cpu",
-        )
+    check_cpu(args.cpu)
     if not args.quiet:
         print(f"cyclictest: {args.seconds:g} s at {args.rate_hz:g} Hz on CPU {args.cpu} ...")
     steal0 = host_steal_s()
