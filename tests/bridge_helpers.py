@@ -62,6 +62,11 @@ class PayloadDrive:
         return controlword
 
 
+def disturbance_in_mnm(refs: References) -> References:
+    """``refs`` with the disturbance the simulated drive can hold: 2100h is whole mN·m."""
+    return dataclasses.replace(refs, disturbance_nm=np.round(refs.disturbance_nm * 1000) / 1000)
+
+
 def controller(axis: AxisConfig = AXIS, enabled: bool = True, **changes: object) -> CycleController:
     reg = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle, enabled=enabled)
     params = dataclasses.replace(BridgeParams.for_axis(axis, reg), **changes)

@@ -16,7 +16,12 @@ from collections.abc import Iterator
 import can
 import numpy as np
 import pytest
-from bridge_helpers import PayloadDrive, controller, run_loop  # tests/ helper module
+from bridge_helpers import (  # tests/ helper module
+    PayloadDrive,
+    controller,
+    disturbance_in_mnm,
+    run_loop,
+)
 
 from bridge.cycle import BridgeState, Command, StopReason
 from bridge.interpolator import Move, Table
@@ -94,8 +99,7 @@ def test_loop_over_the_bus_equals_the_stepped_loop(bus_mode: Interface, enabled:
     disturbance) the loop is the stepped loop of test_bridge_cycle, value for value: the
     bus adds nothing but the PDO scaling that the stepped loop has too."""
     refs = SHORT_X.references(LIMIT_CYCLE_AXIS)
-    # the drive holds the disturbance in 2100h as whole mN·m
-    refs = dataclasses.replace(refs, disturbance_nm=np.round(refs.disturbance_nm * 1000) / 1000)
+    refs = disturbance_in_mnm(refs)  # the drive holds 2100h in whole mN·m
     with simulated_axis(
         LIMIT_CYCLE_AXIS,
         params(LIMIT_CYCLE_AXIS, enabled),

@@ -13,13 +13,12 @@ any change of the arithmetic on either side shows up within a few hundred cycles
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import can
 import numpy as np
 import pytest
-from bridge_helpers import PayloadDrive  # tests/ helper module
+from bridge_helpers import PayloadDrive, disturbance_in_mnm  # tests/ helper module
 from test_bridge_loop import LIMIT_CYCLE_AXIS, SHORT_X, params
 
 from bridge.cycle import BridgeState, CycleController
@@ -106,8 +105,7 @@ def test_lockstep_frames_and_trace_are_those_of_the_stepped_loop(
     bus_mode: Interface, enabled: bool, tmp_path: Path
 ) -> None:
     refs = SHORT_X.references(LIMIT_CYCLE_AXIS)
-    # the drive holds the disturbance in 2100h as whole mN·m
-    refs = dataclasses.replace(refs, disturbance_nm=np.round(refs.disturbance_nm * 1000) / 1000)
+    refs = disturbance_in_mnm(refs)  # the drive holds 2100h in whole mN·m
     with simulated_axis(
         LIMIT_CYCLE_AXIS,
         params(LIMIT_CYCLE_AXIS, enabled),
