@@ -377,9 +377,7 @@ class Bridge:
             self.controller.controlword = CW_RUNNING
             self.scaling = info.scaling
             self.controller.set_scaling(self.scaling)
-            self.use_layout(info.layout)
-            self.objects.set_load_scaling(self.scaling.load_increments_per_unit)
-            if info.encoder_id is not None:
+            if info.encoder_id is not None:  # before use_layout, which admits its frames
                 self.controller.encoder_id = info.encoder_id
                 self._encoder_heartbeat = 0x700 + info.encoder_id
                 self._encoder_emcy = 0x080 + info.encoder_id  # CiA 301 default 1014h
@@ -387,8 +385,8 @@ class Bridge:
                     self._encoder_heartbeat,
                     self._encoder_emcy,
                 }
-                self._lengths[self._encoder_heartbeat] = HEARTBEAT_LENGTH
-                self._lengths[self._encoder_emcy] = EMCY_LENGTH
+            self.use_layout(info.layout)
+            self.objects.set_load_scaling(self.scaling.load_increments_per_unit)
         self.controller.restart_supervision()
         self.controller.state = BridgeState.ENABLING
         return self.drive_info
