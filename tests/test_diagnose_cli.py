@@ -160,15 +160,27 @@ def _one_line_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str], *needl
         assert needle in err[0]
 
 
+@pytest.mark.parametrize(
+    ("flags", "needles"),
+    [
+        (["--alpha", "3"], ["alpha = 3"]),
+        (["--choice-alpha", "0.0001"], ["choice_alpha = 0.0001", "[alpha = 0.001, 1)"]),
+    ],
+    ids=["alpha", "choice-alpha"],
+)
 def test_bad_alpha_exit_2_and_nothing_written(
-    case_files: tuple[Path, Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    case_files: tuple[Path, Path, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    flags: list[str],
+    needles: list[str],
 ) -> None:
     csv, toml, _ = case_files
     out = tmp_path / "never"
     _one_line_exit_2(
-        ["diagnose", str(csv), "--axis", str(toml), "--out", str(out), "--alpha", "3"],
+        ["diagnose", str(csv), "--axis", str(toml), "--out", str(out), *flags],
         capsys,
-        "alpha = 3",
+        *needles,
     )
     assert not out.exists()
 

@@ -47,6 +47,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--alpha", type=float, default=1e-3, help="significance level per candidate (0.001)"
     )
     parser.add_argument(
+        "--choice-alpha",
+        type=float,
+        default=0.05,
+        help="level at which an ambiguous effect with more parameters is named over one with "
+        "fewer (0.05; at least --alpha)",
+    )
+    parser.add_argument(
         "--min-improvement",
         type=float,
         default=0.5,
@@ -71,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     options = DiagnosisOptions(
         alpha=args.alpha,
+        choice_alpha=args.choice_alpha,
         min_improvement=args.min_improvement / 100.0,
         max_effects=args.max_effects,
         jobs=args.jobs,

@@ -29,8 +29,9 @@ judged against the noise where the candidate changes the simulation
 (:func:`~plant_sim.diagnose.metrics.improvement_test`), p < alpha (0.001), a held-out cost
 reduction of at least ``min_improvement`` (0.5 %), and without the held-out block that gains
 most p < 0.1. Candidates that the best one does not beat by the same test explain the data
-equally well: the one with fewest parameters is named, the others are reported with an
-experiment that tells them apart.
+equally well and are reported with an experiment that tells them apart; the one with fewest
+parameters is named unless the best one beats it at ``choice_alpha`` (0.05) by at least
+``min_improvement`` (:func:`.selection.name_among`).
 """
 
 from __future__ import annotations

@@ -120,7 +120,9 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
             "adequacy": d.adequacy,
             "explanation": d.explanation,
             "decision_rule": DECISION_RULE.format(
-                alpha=d.options.alpha, min_improvement=100.0 * d.options.min_improvement
+                alpha=d.options.alpha,
+                min_improvement=100.0 * d.options.min_improvement,
+                choice_alpha=d.options.choice_alpha,
             ),
             "recording": {
                 "samples": len(rec),

@@ -30,8 +30,11 @@ DECISION_RULE = (
     "average. Forward selection: the best such "
     "effect is added, the next round starts from the model with it, until none qualifies. "
     "Effects that the best one does not beat by the same test at the same level explain "
-    "the data equally well: the one with fewest parameters is named, the others are reported "
-    "as ambiguous with an experiment that tells them apart. The "
+    "the data equally well and are reported as ambiguous with an experiment that tells them "
+    "apart; of them the one with fewest parameters is named, unless the best one beats it "
+    "by the same test at p < {choice_alpha:g} with a held-out cost at least "
+    "{min_improvement:g} % lower (a choice between explanations of an effect already "
+    "shown). The "
     "nested F test and BIC with n_eff = held-out samples / autocorrelation time are reported "
     "for comparison."
 )
@@ -42,6 +45,8 @@ class DiagnosisOptions:
     """Settings of :func:`diagnose` (defaults: the documented decision rule)."""
 
     alpha: float = 1e-3  # significance level of the held-out (Diebold-Mariano) test
+    #: level at which an ambiguous candidate with more parameters is named over one with fewer
+    choice_alpha: float = 0.05
     min_improvement: float = 0.005  # least relative held-out cost reduction to name an effect
     block_s: float = 1.0  # length of the interleaved fit / held-out blocks, s
     max_effects: int = 3  # rounds of forward selection
@@ -56,6 +61,12 @@ class DiagnosisOptions:
     def __post_init__(self) -> None:
         checks = [
             ("alpha", self.alpha, 0.0 < self.alpha < 1.0, "(0, 1)"),
+            (
+                "choice_alpha",
+                self.choice_alpha,
+                self.alpha <= self.choice_alpha < 1.0,
+                f"[alpha = {self.alpha:g}, 1)",
+            ),
             ("min_improvement", self.min_improvement, 0.0 <= self.min_improvement < 1.0, "[0, 1)"),
             ("block_s", self.block_s, 0.05 <= self.block_s <= 1e4, "[0.05, 10000] s"),
             (

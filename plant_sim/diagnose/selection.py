@@ -203,10 +203,17 @@ def _decide(
     scorer = sel.scorer
     best_cr, _, best_loss = min(sig, key=lambda item: item[0].heldout.cost)
     losses = {id(cr): lo for cr, _, lo in sig}
-    # a candidate the best one does not beat at the naming level explains the data as well;
-    # of those the one with fewest parameters is named
-    equal = [cr for cr, _, lo in sig if cr is best_cr or scorer.test(lo, best_loss)[1] >= alpha]
-    chosen = min(equal, key=lambda c: (c.heldout.n_free, c.heldout.cost))
+    p_best = [1.0 if cr is best_cr else scorer.test(lo, best_loss)[1] for cr, _, lo in sig]
+    i_chosen, i_equal = name_among(
+        [cr.heldout.n_free for cr, _, _ in sig],
+        [cr.heldout.cost for cr, _, _ in sig],
+        p_best,
+        alpha,
+        ctx.options.choice_alpha,
+        ctx.options.min_improvement,
+    )
+    chosen = sig[i_chosen][0]
+    equal = [sig[i][0] for i in i_equal]
     chosen_fit, chosen_loss = next((r, lo) for c, r, lo in sig if c is chosen)
 
     def ambiguity(cr: CandidateResult, p: float) -> Ambiguity:
@@ -234,6 +241,37 @@ def _decide(
             continue
         sel.ambiguous.append(ambiguity(cr, scorer.test(chosen_loss, lo)[1]))
     return chosen, chosen_fit, chosen_loss
+
+
+def name_among(
+    n_free: Sequence[int],
+    cost: Sequence[float],
+    p_best: Sequence[float],
+    alpha: float,
+    choice_alpha: float,
+    min_improvement: float,
+) -> tuple[int, list[int]]:
+    """Which of the significant candidates of a round is named, and which explain the data as
+    well (indices into the inputs: parameters counted, held-out cost, and the one-sided p
+    that the lowest-cost candidate fits the held-out data better than this one, 1 for
+    itself).
+
+    A candidate that the best one does not beat at the naming level ``alpha`` explains the
+    data as well: it is ambiguous with the named one. Which one is named is a choice
+    between explanations of an effect the data already show, made by the naming rule's own
+    two conditions at the usual level (Occam): the one with fewest parameters (then the lower
+    cost) among those that the best one does not beat at p < ``choice_alpha`` with a held-out
+    cost at least ``min_improvement`` lower. Asymmetric Coulomb friction and a constant load
+    torque are the same law while the axis moves; the asymmetric friction, one parameter
+    more, is named only when it fits the held-out data better by both conditions."""
+    n = len(cost)
+    best = min(cost)
+    equal = [i for i in range(n) if p_best[i] >= alpha]
+    beaten = [
+        p_best[i] < choice_alpha and cost[i] - best >= min_improvement * cost[i] for i in range(n)
+    ]
+    chosen = min((i for i in equal if not beaten[i]), key=lambda i: (n_free[i], cost[i]))
+    return chosen, equal
 
 
 def _adopt(
