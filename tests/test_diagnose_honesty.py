@@ -18,7 +18,16 @@ from plant_sim.diagnose.engine import DiagnosisOptions, diagnose
 from plant_sim.diagnose.fit import FitResult, Parameter
 from plant_sim.diagnose.metrics import fit_percent
 from plant_sim.diagnose.mismatch import classify, reference_kinematics
-from plant_sim.diagnose.parameters import UNCERTAINTY, free_keys, key_unit, suspects, units
+from plant_sim.diagnose.parameters import (
+    UNCERTAINTY,
+    free_keys,
+    held_within,
+    key_unit,
+    suspects,
+    uncertainty_box,
+    units,
+    within_uncertainty,
+)
 from plant_sim.diagnose.results import SignalFit
 from plant_sim.diagnose.synthetic import slide_axis
 from plant_sim.model import KernelOptions, default_substeps
@@ -202,3 +211,25 @@ def test_adequacy_white_residual_is_explained_and_a_resonance_is_not() -> None:
     assert bad.frequency_hz["motor_torque"] == pytest.approx(7.0, abs=0.3)
     said = [float(m) for h in bad.hints for m in re.findall(r"([\d.]+) Hz", h)]
     assert any(abs(f - 7.0) < 0.3 for f in said), bad.hints
+
+
+def test_suspects_are_held_within_their_data_sheet_uncertainty() -> None:
+    """The box a held suspect may use in a candidate's fit is the nominal value ± its
+    relative uncertainty (mass 15 %), cut to the search box; the axis the candidates start
+    from has the suspect at the nearest value the data sheet allows."""
+    nominal = slide_axis().with_values({"mechanics.load_mass": 22.5})
+    u = UNCERTAINTY["mechanics.load_mass"]
+    assert uncertainty_box("mechanics.load_mass", nominal) == pytest.approx(
+        (22.5 * (1 - u), 22.5 * (1 + u))
+    )
+    p = Parameter("mechanics.load_mass", 11.25, 45.0, 26.1, 22.5, log=True)
+    cut = within_uncertainty(p, nominal)
+    assert (cut.low, cut.high) == pytest.approx((22.5 * (1 - u), 22.5 * (1 + u)))
+    assert cut.start == pytest.approx(22.5 * (1 + u))  # the re-fit's 26.1, clipped
+    moved = nominal.with_values({"mechanics.load_mass": 26.1})
+    held = held_within(moved, nominal, ["mechanics.load_mass"])
+    assert held.mechanics.load_mass == pytest.approx(22.5 * (1 + u))
+    # a key the nominal lacks (or has at 0) has no data sheet: left as it is
+    assert uncertainty_box("disturbance.constant_torque", nominal) is None
+    q = Parameter("disturbance.constant_torque", -1.0, 1.0, 0.3, 0.1)
+    assert within_uncertainty(q, nominal) == q

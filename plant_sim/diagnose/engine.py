@@ -15,9 +15,9 @@ Stages (one function each):
 3. :func:`_locate` — the base model's residual in time and by operating condition, its
    whiteness and correlations (:mod:`.mismatch`).
 4. :func:`.selection.select` — forward selection: every effect of the table
-   (:data:`.effects.MODELS`) the model lacks is added with the suspects held at their
-   nominal values (an effect is compared with the re-fit on equal terms: a dead time is not
-   explained away by damping)
+   (:data:`.effects.MODELS`) the model lacks is added with the suspects held within their
+   data-sheet uncertainty (an effect is compared with the re-fit on equal terms: a dead time
+   is not explained away by damping moved beyond what a data sheet allows)
    and scored on the held-out data (:mod:`.scoring`); the best one that passes the decision
    rule is named, all parameters are re-fitted with it, and the next round starts.
 5. :func:`_finish` — final scores; a fitted model worse than the nominal on the held-out
@@ -75,6 +75,7 @@ from .parameters import (
     parameter_for,
     rounded,
     suspects,
+    uncertainty_box,
 )
 from .replay import compared_quantity, prepare_replay, replay
 from .results import (
@@ -328,14 +329,10 @@ def _finish(ctx: Context, base: Base, located: Located, sel: Selection) -> Diagn
     fit_after = signal_fits(inp, sim_after)
     adequacy = assess(final_res, located.kin, located.labels, tests_final, fit_after)
     if sel.hold and sel.added:
-        where = ", ".join(
-            f"{k} ({'nominal' if fitted.value(k) == nominal.value(k) else 're-fitted'} in "
-            "axis_fitted.toml)"
-            for k in sel.hold
-        )
+        where = ", ".join(f"{k} ({_held_where(k, fitted, nominal)})" for k in sel.hold)
         ctx.notes.append(
-            "held at their nominal values while effects were compared (a re-fit moved them "
-            f"beyond their data-sheet uncertainty or onto a bound): {where}"
+            "held within their data-sheet uncertainty while effects were compared (a re-fit "
+            f"moved them beyond it or onto a bound): {where}"
         )
     ranked = sorted(
         sel.candidates.values(), key=lambda c: (c.round, not c.accepted, -c.improvement_percent)
@@ -417,3 +414,15 @@ def rounded_axis(axis: AxisConfig, nominal: AxisConfig) -> AxisConfig:
         return plain_floats(axis.with_values(changes)) if changes else plain_floats(axis)
     except AxisFileError:
         return plain_floats(axis)
+
+
+def _held_where(key: str, fitted: AxisConfig, nominal: AxisConfig) -> str:
+    """Where a held parameter is in axis_fitted.toml: at nominal, within its data-sheet
+    uncertainty, or beyond it (a polish after the last named effect moved it)."""
+    value, box = fitted.value(key), uncertainty_box(key, nominal)
+    if value is None or box is None:
+        return "not in axis_fitted.toml"
+    if value == nominal.value(key):
+        return "nominal in axis_fitted.toml"
+    inside = box[0] <= value <= box[1]
+    return f"{'within' if inside else 'beyond'} its uncertainty in axis_fitted.toml"

@@ -10,8 +10,9 @@ Data-sheet uncertainty (:data:`UNCERTAINTY`): how far a re-fit may move a parame
 nominal value before the move itself is a finding. A parameter that ends on a bound of its
 search box, or moves further than its uncertainty, is reported as a sign of missing physics
 (:func:`suspects`): small differences of model form (a dead time, a cogging torque) are
-otherwise soaked up by the elastic parameters, and the diagnosis then compares every effect
-against the re-fit with those parameters held at their nominal values.
+otherwise soaked up by the elastic parameters, and the diagnosis then compares every effect,
+fitted with those parameters held within their uncertainty (:func:`within_uncertainty`),
+against the re-fit that moved them further.
 """
 
 from __future__ import annotations
@@ -318,6 +319,38 @@ def suspects(
         if bound or moved:
             out.append(Suspect(p.key, float(nom or 0.0), float(value), rel, bound))
     return out
+
+
+def uncertainty_box(key: str, nominal: AxisConfig) -> tuple[float, float] | None:
+    """The values a data sheet allows for ``key``: the nominal value within its relative
+    :data:`UNCERTAINTY` (None: the nominal has no value for it)."""
+    n = nominal.value(key)
+    if n is None or n == 0.0:
+        return None
+    u = UNCERTAINTY.get(key, 1.0)
+    lo, hi = sorted((n * (1.0 - u), n * (1.0 + u)))
+    return lo, hi
+
+
+def within_uncertainty(p: Parameter, nominal: AxisConfig) -> Parameter:
+    """``p`` with its bounds cut to the data sheet's :func:`uncertainty_box`."""
+    box = uncertainty_box(p.key, nominal)
+    if box is None:
+        return p
+    lo, hi = max(p.low, box[0]), min(p.high, box[1])
+    if not lo < hi:
+        return p
+    return Parameter(p.key, lo, hi, p.start, p.scale, p.log)
+
+
+def held_within(axis: AxisConfig, nominal: AxisConfig, keys: Sequence[str]) -> AxisConfig:
+    """``axis`` with ``keys`` moved to the nearest value its data sheet allows."""
+    values = {}
+    for k in keys:
+        box, v = uncertainty_box(k, nominal), axis.value(k)
+        if box is not None and v is not None:
+            values[k] = min(box[1], max(box[0], float(v)))
+    return axis.with_values(values) if values else axis
 
 
 def held_at_nominal(axis: AxisConfig, nominal: AxisConfig, keys: Sequence[str]) -> AxisConfig:

@@ -194,7 +194,7 @@ class Diagnosis:
     refit_values: dict[str, tuple[float, float]]  # key -> (nominal, refitted)
     fitted_values: dict[str, tuple[float, float]]  # key -> (nominal, in axis_fitted.toml)
     #: re-fitted parameters that ended on a bound or moved beyond their data-sheet
-    #: uncertainty (signs of missing physics; held at nominal when effects are compared)
+    #: uncertainty (signs of missing physics; held within it when effects are compared)
     suspects: list[Suspect]
     refit_decision: str  # which re-fit was kept and why (held-out costs)
     heldout_nominal: Score  # held-out score of the nominal as given (final weights)

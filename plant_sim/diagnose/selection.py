@@ -1,7 +1,7 @@
 """Forward selection of the effects the model leaves out (stage 4 of :func:`.engine.diagnose`).
 
 Every effect of the table the model lacks (:data:`.effects.MODELS`) is added to the current
-model with the suspects held at their nominal values and scored on the held-out data
+model with the suspects held within their data-sheet uncertainty and scored on the held-out data
 (:class:`.scoring.Scorer`); the best one that passes the decision rule is named
 (:func:`_decide`), all parameters are re-fitted with it (:func:`_adopt`), and the next round
 starts, until none qualifies.
@@ -16,9 +16,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..axis import AxisConfig
 from ..errors import AxisFileError
 from ..trace import Trace
 from .effects import MODELS, Effect, Evidence, effects_in, experiment_for
+from .evidence import DataScales
 from .fit import (
     PERIODIC_COS,
     PERIODIC_SIN,
@@ -32,8 +34,9 @@ from .metrics import f_test
 from .parameters import (
     base_parameters,
     free_keys,
-    held_at_nominal,
+    held_within,
     suspects,
+    within_uncertainty,
 )
 from .replay import replay
 from .results import (
@@ -133,19 +136,19 @@ def _round(
     pool: ThreadPoolExecutor | None,
     last_gain: dict[Effect, float],
 ) -> list[tuple[CandidateResult, FitResult, np.ndarray]]:
-    """Fit every candidate of a round on the model with the suspects at nominal; score,
-    test and record them."""
-    keys = free_keys(sel.current.axis, _added_keys(sel.added), [*fixed, *sel.hold])
+    """Fit every candidate of a round on the model with the suspects within their data-sheet
+    uncertainty; score, test and record them."""
+    keys = free_keys(sel.current.axis, _added_keys(sel.added), fixed)
     on = sel.current
     if sel.hold:
-        held_axis = held_at_nominal(on.axis, ctx.nominal, sel.hold)
+        held_axis = held_within(on.axis, ctx.nominal, sel.hold)
         res = sel.obj.residuals(held_axis, on.options)
         on = replace(on, axis=held_axis, residuals=res, cost=sel.obj.cost(res))
     evidence = Evidence(ctx.inp, sel.simulated, ctx.scales)
 
     def run(effect: Effect) -> tuple[Effect, FitResult | None, int, list[str], float]:
         t = time.perf_counter()
-        out = _fit_candidate(effect, on, keys, ctx, evidence, sel.obj)
+        out = _fit_candidate(effect, on, keys, sel.hold, ctx, evidence, sel.obj)
         return (*out, time.perf_counter() - t)
 
     outcomes = list(pool.map(run, cands)) if pool else [run(e) for e in cands]
@@ -296,23 +299,37 @@ def _adopt(
     sel.scorer = Scorer(sel.obj, val_objs, sel.scorer.blocks, sel.scorer.lags)
     current = rescaled(current, old_obj, sel.obj)
     ctx.stage(f"re-fit with {chosen.effect.value}")
-    keys = free_keys(current.axis, _added_keys(sel.added), [*fixed, *sel.hold])
-    params = base_parameters(current.axis, keys, ctx.scales, ctx.nominal)
+    keys = free_keys(current.axis, _added_keys(sel.added), fixed)
+    params = coupled_parameters(current.axis, keys, sel.hold, ctx.scales, ctx.nominal)
     spec_all = FitSpec(current.axis, params, options=current.options, n_global=0)
     polished = fit(spec_all, sel.obj, 2 * opts.max_nfev, 1, opts.seed, ctx.tick)
     if polished.cost < current.cost:
         current = polished
         more = [s.key for s in suspects(polished, params, ctx.nominal) if s.key in keys]
-        sel.hold += [k for k in more if k not in (PERIODIC_COS, PERIODIC_SIN)]
+        sel.hold += [k for k in more if k not in (PERIODIC_COS, PERIODIC_SIN, *sel.hold)]
     sel.current = current
     sel.score, sel.loss = sel.scorer.score(current, chosen.heldout.n_free)
     sel.simulated = replay(current.axis, ctx.inp, current.options)
+
+
+def coupled_parameters(
+    axis: AxisConfig,
+    keys: Sequence[str],
+    hold: Sequence[str],
+    scales: DataScales,
+    nominal: AxisConfig,
+) -> tuple[Parameter, ...]:
+    """The model's free parameters re-fitted with a candidate; the held ones (suspects of a
+    re-fit) only within their data-sheet uncertainty."""
+    params = base_parameters(axis, keys, scales, nominal)
+    return tuple(within_uncertainty(p, nominal) if p.key in hold else p for p in params)
 
 
 def _fit_candidate(
     effect: Effect,
     base: FitResult,
     keys: Sequence[str],
+    hold: Sequence[str],
     ctx: Context,
     evidence: Evidence,
     obj: Objective,
@@ -345,7 +362,7 @@ def _fit_candidate(
         gain = (base.cost - best.cost) / base.cost
         if gain < SCREEN * opts.min_improvement:
             return effect, best, n_effect, cand.notes
-        coupled = base_parameters(base.axis, keys, evidence.scales, ctx.nominal)
+        coupled = coupled_parameters(base.axis, keys, hold, evidence.scales, ctx.nominal)
         own = [
             Parameter(p.key, p.low, p.high, best.values[p.key], p.scale, p.log)
             for p in best_spec.parameters

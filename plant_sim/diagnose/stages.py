@@ -78,7 +78,7 @@ class Base:
     score: Score
     loss: np.ndarray
     suspects: list[Suspect]
-    hold: list[str]  # keys held at nominal when effects are compared
+    hold: list[str]  # keys held within their uncertainty when effects are compared
     decision: str
 
 
