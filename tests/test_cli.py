@@ -194,3 +194,36 @@ def test_progress_on_a_terminal_is_a_bar() -> None:
         bar.update(4)
         assert bar._tqdm.n == 4
     assert "cmd:" not in out.getvalue()  # no stage lines in bar mode
+
+
+def test_a_closed_reader_of_stdout_ends_quietly(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``prog go | head -1``: standard output is an OS pipe whose reader has gone. The command
+    ends with 141 (128 + SIGPIPE) and no error line; a broken pipe that is not standard
+    output's (a socket, a child's pipe) is a failure like any other."""
+    import os
+
+    read_fd, write_fd = os.pipe()
+    os.close(read_fd)  # the reader is gone before the first line
+    with capsys.disabled():
+        stdout = open(write_fd, "w", buffering=1)  # noqa: SIM115 - closed below
+        monkeypatch.setattr("sys.stdout", stdout)
+
+        def run(args: argparse.Namespace) -> int:
+            for i in range(100):
+                print(f"line {i}")
+            return 0
+
+        try:
+            assert cli.main("prog", "test", [_module(run)], ["go"]) == cli.EXIT_BROKEN_PIPE
+        finally:
+            monkeypatch.undo()
+            stdout.close()
+
+    def socket_run(args: argparse.Namespace) -> int:
+        raise BrokenPipeError(32, "Broken pipe")  # standard output is fine
+
+    failures = (cli.Failure((OSError,), 1, "bus"),)
+    assert cli.main("prog", "test", [_module(socket_run)], ["go"], failures) == 1
+    assert capsys.readouterr().err.splitlines() == ["prog go: error: bus: [Errno 32] Broken pipe"]

@@ -22,6 +22,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import os
+import select
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -33,6 +35,9 @@ from typing import NoReturn, Protocol
 EXIT_USAGE = 2
 #: Exit status of a failure while running (device, bus, environment).
 EXIT_FAILURE = 1
+#: the reader of standard output went away (``| head``): 128 + SIGPIPE, what a shell reports
+#: for a filter stopped the same way
+EXIT_BROKEN_PIPE = 141
 
 
 class UsageError(Exception):
@@ -133,11 +138,29 @@ def main(
     except UsageError as exc:
         return print_error(where, exc, EXIT_USAGE)
     except Exception as exc:
+        if isinstance(exc, BrokenPipeError) and _stdout_gone():
+            # nobody reads the rest: no error line, and no second failure when Python
+            # flushes standard output at exit (the recipe of the `signal` module's docs)
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return EXIT_BROKEN_PIPE
         for failure in (*failures, FILE_ERRORS):
             if isinstance(exc, failure.types):
                 label = f"{failure.label}: " if failure.label else ""
                 return print_error(where, f"{label}{exc}", failure.code)
         raise
+
+
+def _stdout_gone() -> bool:
+    """Whether a broken pipe is standard output's (not a socket's or a child's pipe): the
+    write end of a pipe whose reader has closed polls as an error."""
+    try:
+        fd = sys.stdout.fileno()
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        events = poller.poll(0)
+    except (OSError, ValueError, AttributeError):
+        return False
+    return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in events)
 
 
 # --- argument types -----------------------------------------------------------------------------
