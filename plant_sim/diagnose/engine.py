@@ -70,6 +70,7 @@ from .mismatch import (
 )
 from .parameters import (
     MODEL_FORM_KEYS,
+    beyond_uncertainty,
     held_at_nominal,
     nominal_spec,
     parameter_for,
@@ -419,10 +420,10 @@ def rounded_axis(axis: AxisConfig, nominal: AxisConfig) -> AxisConfig:
 def _held_where(key: str, fitted: AxisConfig, nominal: AxisConfig) -> str:
     """Where a held parameter is in axis_fitted.toml: at nominal, within its data-sheet
     uncertainty, or beyond it (a polish after the last named effect moved it)."""
-    value, box = fitted.value(key), uncertainty_box(key, nominal)
-    if value is None or box is None:
+    value = fitted.value(key)
+    if value is None or uncertainty_box(key, nominal) is None:
         return "not in axis_fitted.toml"
     if value == nominal.value(key):
         return "nominal in axis_fitted.toml"
-    inside = box[0] <= value <= box[1]
-    return f"{'within' if inside else 'beyond'} its uncertainty in axis_fitted.toml"
+    beyond = beyond_uncertainty(key, value, nominal)
+    return f"{'beyond' if beyond else 'within'} its uncertainty in axis_fitted.toml"

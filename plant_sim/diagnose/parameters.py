@@ -252,9 +252,17 @@ def current_value(axis: AxisConfig, key: str) -> float:
 
 
 def base_parameters(
-    axis: AxisConfig, keys: Sequence[str], scales: DataScales, nominal: AxisConfig
+    axis: AxisConfig,
+    keys: Sequence[str],
+    scales: DataScales,
+    nominal: AxisConfig,
+    hold: Sequence[str] = (),
 ) -> tuple[Parameter, ...]:
-    return tuple(parameter_for(k, current_value(axis, k), scales, nominal, axis) for k in keys)
+    """The fitted parameters of ``keys`` around their values in ``axis``; the ``hold`` ones
+    (suspects of a re-fit, while effects are compared) only within their data-sheet
+    uncertainty (:func:`within_uncertainty`)."""
+    params = (parameter_for(k, current_value(axis, k), scales, nominal, axis) for k in keys)
+    return tuple(within_uncertainty(p, nominal) if p.key in hold else p for p in params)
 
 
 def _max_wa(parameters: Sequence[Parameter], axis: AxisConfig) -> float | None:
@@ -313,7 +321,7 @@ def suspects(
         bound = "lower" if u <= lo + tol else "upper" if u >= hi - tol else ""
         nom = nominal.value(p.key) if p.key not in (PERIODIC_COS, PERIODIC_SIN) else None
         rel = UNCERTAINTY.get(p.key, 1.0)
-        moved = nom is not None and nom != 0.0 and abs(value / nom - 1.0) > rel
+        moved = nom is not None and beyond_uncertainty(p.key, value, nominal)
         if bound and p.low == 0.0 and (nom is None or nom == 0.0):
             bound = ""  # an absent/zero value staying at zero is no finding
         if bound or moved:
@@ -330,6 +338,13 @@ def uncertainty_box(key: str, nominal: AxisConfig) -> tuple[float, float] | None
     u = UNCERTAINTY.get(key, 1.0)
     lo, hi = sorted((n * (1.0 - u), n * (1.0 + u)))
     return lo, hi
+
+
+def beyond_uncertainty(key: str, value: float, nominal: AxisConfig) -> bool:
+    """Whether ``value`` lies outside the data sheet's :func:`uncertainty_box` (False when
+    the nominal has no value for ``key``)."""
+    box = uncertainty_box(key, nominal)
+    return box is not None and not box[0] <= value <= box[1]
 
 
 def within_uncertainty(p: Parameter, nominal: AxisConfig) -> Parameter:

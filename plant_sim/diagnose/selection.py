@@ -16,11 +16,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..axis import AxisConfig
 from ..errors import AxisFileError
 from ..trace import Trace
 from .effects import MODELS, Effect, Evidence, effects_in, experiment_for
-from .evidence import DataScales
 from .fit import (
     PERIODIC_COS,
     PERIODIC_SIN,
@@ -36,7 +34,6 @@ from .parameters import (
     free_keys,
     held_within,
     suspects,
-    within_uncertainty,
 )
 from .replay import replay
 from .results import (
@@ -300,7 +297,7 @@ def _adopt(
     current = rescaled(current, old_obj, sel.obj)
     ctx.stage(f"re-fit with {chosen.effect.value}")
     keys = free_keys(current.axis, _added_keys(sel.added), fixed)
-    params = coupled_parameters(current.axis, keys, sel.hold, ctx.scales, ctx.nominal)
+    params = base_parameters(current.axis, keys, ctx.scales, ctx.nominal, sel.hold)
     spec_all = FitSpec(current.axis, params, options=current.options, n_global=0)
     polished = fit(spec_all, sel.obj, 2 * opts.max_nfev, 1, opts.seed, ctx.tick)
     if polished.cost < current.cost:
@@ -310,19 +307,6 @@ def _adopt(
     sel.current = current
     sel.score, sel.loss = sel.scorer.score(current, chosen.heldout.n_free)
     sel.simulated = replay(current.axis, ctx.inp, current.options)
-
-
-def coupled_parameters(
-    axis: AxisConfig,
-    keys: Sequence[str],
-    hold: Sequence[str],
-    scales: DataScales,
-    nominal: AxisConfig,
-) -> tuple[Parameter, ...]:
-    """The model's free parameters re-fitted with a candidate; the held ones (suspects of a
-    re-fit) only within their data-sheet uncertainty."""
-    params = base_parameters(axis, keys, scales, nominal)
-    return tuple(within_uncertainty(p, nominal) if p.key in hold else p for p in params)
 
 
 def _fit_candidate(
@@ -362,7 +346,7 @@ def _fit_candidate(
         gain = (base.cost - best.cost) / base.cost
         if gain < SCREEN * opts.min_improvement:
             return effect, best, n_effect, cand.notes
-        coupled = coupled_parameters(base.axis, keys, hold, evidence.scales, ctx.nominal)
+        coupled = base_parameters(base.axis, keys, evidence.scales, ctx.nominal, hold)
         own = [
             Parameter(p.key, p.low, p.high, best.values[p.key], p.scale, p.log)
             for p in best_spec.parameters
