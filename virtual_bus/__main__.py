@@ -1,4 +1,5 @@
-"""Command line: ``python -m virtual_bus setup [NAME]`` and ``python -m virtual_bus probe``.
+"""Command line: ``python -m virtual_bus setup [NAME]``, ``python -m virtual_bus probe`` and
+``python -m virtual_bus guest [--kernel PATH] [--mem MB] -- COMMAND ARGS...``.
 
 Commands are modules under :mod:`virtual_bus.commands`, run by :mod:`virtual_bus.cli`.
 Exit status: 0 ok, 1 environment problem (one-line message), 2 bad arguments.
@@ -11,10 +12,11 @@ from collections.abc import Sequence
 
 from virtual_bus import cli
 from virtual_bus.errors import VcanSetupError, VirtualBusError
+from virtual_bus.guest_kernel import GuestError
 from virtual_bus.vcan import HostProbe, Runner, run_ip
 
 PROG = "python -m virtual_bus"
-COMMANDS = ("setup", "probe")
+COMMANDS = ("setup", "probe", "guest")
 
 
 def main(
@@ -29,7 +31,7 @@ def main(
         cli.load_commands("virtual_bus", COMMANDS),
         argv,
         failures=(
-            cli.Failure((VcanSetupError,), cli.EXIT_FAILURE),
+            cli.Failure((VcanSetupError, GuestError), cli.EXIT_FAILURE),
             cli.Failure((VirtualBusError,)),
         ),
         defaults={"runner": runner, "probe": probe},
