@@ -67,11 +67,15 @@ __all__ = ["DriveConfig", "SimulatedDrive", "TimeMode", "warm_up"]
 
 
 def warm_up(axis: AxisConfig) -> None:
-    """Load (or compile, on an empty numba cache) both physics kernels the drive steps:
-    ``advance`` (Operation enabled, ramps) and ``advance_torque`` (every other state)."""
+    """Load (or compile, on an empty numba cache) every compiled function the drive calls:
+    both physics kernels it steps, ``advance`` (Operation enabled, ramps) and
+    ``advance_torque`` (every other state), and the three measuring systems it reads after
+    each step and for SDO reads of 6064h, 606Ch, 60E4h (motor position, motor speed, load
+    position): each is a compiled function of its own, compiled at its first call."""
     plant = AxisPlant(axis)
     plant.advance(0.0)
     plant.advance_torque(0.0)
+    _ = (plant.motor_position_rad, plant.motor_speed_rad_s, plant.load_position)
 
 
 class SimulatedDrive:
