@@ -203,20 +203,21 @@ def test_encoder_discrepancy_stops_the_axis(bus_mode: Interface, tamper: list) -
 
 def test_persistent_pdo_loss_stops_the_axis(bus_mode: Interface, tamper: list) -> None:
     with simulated_axis(
-        AXIS,
-        params(pdo_loss_tolerance=4),
-        interface=bus_mode,
-        lockstep_wait_s=0.01,
-        wrap_bridge_bus=wrap(tamper),
+        AXIS, params(pdo_loss_tolerance=4), interface=bus_mode, wrap_bridge_bus=wrap(tamper)
     ) as sim:
-        _moving(sim)
+        _moving(sim)  # the default lockstep wait: the drive's TPDOs come however busy the host
+        c = sim.bridge.controller
+        assert c.consecutive_missed == 0
+        missed = sim.bridge.counters.missed
         tamper[0].drop = set(TPDO_IDS)
+        # from now on no TPDO reaches the loop: how long it waits for them changes no count,
+        # only how long this test takes
+        sim.bridge.pacer.wait_s = 0.005
         k0 = sim.bridge.cycle_index
         sim.bridge.run(until=lambda b: b.controller.state is BridgeState.STOPPED)
-        c = sim.bridge.controller
         assert c.stop_reason is StopReason.PDO_LOSS
         assert sim.bridge.cycle_index - k0 == 5  # tolerance 4: the 5th lost cycle stops
-        assert sim.bridge.counters.missed == 10
+        assert sim.bridge.counters.missed - missed == 10
         tamper[0].drop = set()
         _no_setpoints_after(sim, 400)
 
@@ -255,8 +256,10 @@ def test_random_loss_and_delay_keep_the_loop_stable_and_are_all_counted(
     )
     assert dropped > 0 and delayed > 0
     assert counts.pending[Direction.RECEIVE] == 0
-    assert k.missed - k.late == dropped
-    assert k.late == delayed  # every delayed TPDO arrived after its cycle
+    assert k.missed - k.late == dropped  # a TPDO that came late was counted missed first
+    # every delayed TPDO (2.5 cycles) arrived after its cycle; on a busy host a TPDO that was
+    # not delayed may also miss the 20 ms wall-clock window: it is then late, never lost
+    assert k.late >= delayed
     assert k.missed_cycles <= k.missed
     # stable: the following error stays where the undisturbed loop has it (eq. 1: 2 mm)
     fe = run.trace["following_error"]
@@ -283,6 +286,12 @@ def test_sdo_configuration_while_the_loop_runs(bus_mode: Interface) -> None:
         )
         try:
             loop.start()
+            # the loop enables the axis in its first cycles: wait for RUNNING, bounded by
+            # the loop's own progress (its cycles), not by the clock
+            state = node.sdo.upload(objdict.STATE, 0)[0]
+            while state != BridgeState.RUNNING.value and sim.bridge.cycle_index < 1000:
+                assert loop.is_alive()
+                state = node.sdo.upload(objdict.STATE, 0)[0]
             node.sdo.download(objdict.FE_LIMIT, 0, struct.pack("<f", 0.003))
             state = node.sdo.upload(objdict.STATE, 0)[0]
             code = None
