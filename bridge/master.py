@@ -34,6 +34,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 
 import canopen
+from canopen.nmt import NmtError
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from plant_sim.axis import AxisKind
@@ -71,6 +72,9 @@ class DriveSetup:
     heartbeat_producer_ms: 1017h of the drive, ms (1..65535), below the bridge's consumer
     time. sdo_timeout_s / sdo_retries: per SDO request. state_timeout_s: wall time for each
     CiA 402 transition. disable_other_pdos: switch off the drive's PDOs outside the layout.
+    wait_for_drive: before anything else wait for the drive itself, with no time limit
+    (:meth:`DriveMaster.await_drive`; lockstep, where a simulated drive may still be
+    compiling its physics when the bridge starts).
     """
 
     heartbeat_producer_ms: int = 100
@@ -78,6 +82,7 @@ class DriveSetup:
     sdo_retries: int = 3
     state_timeout_s: float = 2.0
     disable_other_pdos: bool = True
+    wait_for_drive: bool = False
 
     def __post_init__(self) -> None:
         hb = self.heartbeat_producer_ms
@@ -89,6 +94,11 @@ class DriveSetup:
                 raise BridgeConfigError(f"{name} = {value!r}: must be in (0, 60] s")
         if not isinstance(self.sdo_retries, int) or not 1 <= self.sdo_retries <= 10:
             raise BridgeConfigError(f"sdo_retries = {self.sdo_retries!r}: must be 1..10")
+
+
+#: While the start-up waits for a drive that does not answer yet, how long each wait for its
+#: boot-up message lasts before 1000h is asked again (s; not a limit: the wait goes on).
+AWAIT_DRIVE_POLL_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -217,6 +227,32 @@ class DriveMaster:
                     break
             found.append(PdoFacts(n, cob, tt_raw[0] if tt_raw else None, entries))
         return tuple(found)
+
+    def await_drive(self) -> None:
+        """Wait on the drive, not on the clock (``DriveSetup.wait_for_drive``): a drive that
+        answers 1000h (or refuses it) is there; until it does, its boot-up message (any
+        frame of its NMT error control, 700h + node-ID) is awaited and 1000h asked again,
+        with no time limit (Ctrl-C ends it). A simulated drive compiles its physics before
+        it sends its boot-up message: on an empty numba cache and a busy machine that takes
+        longer than any SDO timeout, and a bridge started beside it must not give up."""
+        said = False
+        while True:
+            try:
+                self.read(0x1000, 0, " (device type)")
+                return
+            except DriveTimeoutError:
+                pass
+            except DriveSetupError:
+                return  # refused: the drive is there
+            if not said:
+                log.warning(
+                    "drive %d does not answer yet: waiting for its boot-up message (the "
+                    "lockstep start-up waits on the drive, not the clock; Ctrl-C stops)",
+                    self.drive.id,
+                )
+                said = True
+            with contextlib.suppress(NmtError):
+                self.drive.nmt.wait_for_heartbeat(timeout=AWAIT_DRIVE_POLL_S)
 
     def read_facts(self) -> DriveFacts:
         """Step 2 of the module docstring: reads only, nothing is written."""
@@ -378,6 +414,8 @@ class DriveMaster:
     def configure(self) -> tuple[Plan, DriveFacts, int]:
         """Steps 1-5 of the module docstring (the drive stays pre-operational); returns the
         plan, the facts and the mode shown in 6061h."""
+        if self.setup.wait_for_drive:
+            self.await_drive()
         self.drive.nmt.send_command(NmtCommand.ENTER_PRE_OPERATIONAL)
         facts = self.read_facts()
         the_plan = self.plan(facts)

@@ -11,6 +11,7 @@ from virtual_bus.realtime import add_realtime_options, realtime_options
 from .. import od as objdict
 from ..errors import BridgeError
 from ..interpolator import Move, load_move_file, parse_move
+from ..master import DriveSetup
 from ..node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
 from ..profile import load_profile
 from ..timing import TimeMode
@@ -119,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
             drive_id=args.drive_id,
             store_path=args.store or default_store_path(args.axis),
             profile=None if args.drive_profile is None else load_profile(args.drive_profile),
+            # lockstep: a simulated drive started beside the bridge may still be compiling
+            drive_setup=DriveSetup(wait_for_drive=args.clock == TimeMode.LOCKSTEP.value),
         ),
         moves=tuple(moves),
         seconds=args.seconds,
@@ -140,6 +143,10 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{result.cycles} cycles; state {result.state.name}; missed TPDOs "
         f"{result.missed_tpdos}, late {result.late_tpdos}, skipped SYNCs {result.skipped_syncs}"
+    )
+    print(
+        "refused frames (2110h): "
+        + ", ".join(f"{fault.name.lower()} {n}" for fault, n in result.refused_frames)
     )
     if result.stop_message != "none":
         print(f"stopped: {result.stop_message}")
