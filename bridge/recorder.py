@@ -12,6 +12,9 @@
   (the SDO start-up too, so can-utils' ``log2asc`` / ``canplayer`` and a second log of the
   same bus line up), the interface name of the bus (:func:`log_channel`, at most 15
   characters as a Linux interface name), flushed every ``flush_every`` frames.
+* :class:`WireOrderBus`: on a bus that hands a process its own frames back (SocketCAN with
+  ``receive_own_messages``), the log in the order the wire carried the frames, as ``candump
+  -L`` records it from another process.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from __future__ import annotations
 import re
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -194,10 +198,20 @@ class BusLog:
         msg.channel = self.channel
         with self._lock:
             writer = self._writer
-            if (
+            if msg.is_remote_frame and not (msg.is_error_frame or msg.is_fd):
+                # candump writes a remote frame's DLC after the R ("602#R8", can-utils'
+                # lib.c); python-can's writer leaves it out (its reader reads it back)
+                if writer.last_timestamp is None:
+                    writer.last_timestamp = timestamp
+                timestamp = max(timestamp, writer.last_timestamp)
+                width = 8 if msg.is_extended_id else 3
+                writer.file.write(
+                    f"({timestamp:f}) {self._line_channel} {msg.arbitration_id:0{width}X}#R"
+                    f"{f'{msg.dlc:X}' if msg.dlc else ''}{' R' if received else ' T'}\n"
+                )
+            elif (
                 msg.is_error_frame
                 or msg.is_extended_id
-                or msg.is_remote_frame
                 or msg.is_fd
                 or writer.last_timestamp is None
             ):
@@ -226,3 +240,86 @@ class BusLog:
     def close(self) -> None:
         with self._lock:
             self._writer.stop()
+
+
+def _frame_key(msg: can.Message) -> tuple[int, bool, bool, int, bytes]:
+    return (
+        msg.arbitration_id,
+        msg.is_extended_id,
+        msg.is_remote_frame,
+        msg.dlc,
+        bytes(msg.data),
+    )
+
+
+class WireOrderBus(can.BusABC):
+    """The bridge's end of a bus whose frames are logged in the order the wire carried them.
+
+    A log written when a frame is sent and when one is received has the order in which the
+    bridge handled them: a drive's heartbeat that reached the bus just before the bridge's
+    RPDO, but was read after it was sent, is logged after it, while ``candump`` on the same
+    bus records it before. On SocketCAN the kernel hands a socket opened with
+    ``receive_own_messages`` its own frames back in the bus's order among everyone else's,
+    so this wrapper logs a sent frame when it comes back (the frames it sent and has not
+    yet got back wait in a queue; a frame equal to the oldest of them is that one) and
+    hands only the other nodes' frames on. ``inner``: the bus opened with
+    ``receive_own_messages=True``; it stays the caller's to shut down, and ``log`` to close.
+    """
+
+    def __init__(self, inner: can.BusABC, log: BusLog) -> None:
+        self._inner = inner
+        self.log = log
+        self._pending: deque[tuple[int, bool, bool, int, bytes]] = deque()
+        self._lock = threading.Lock()
+        self.channel_info = getattr(inner, "channel_info", "")
+        super().__init__(channel=None)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        key = _frame_key(msg)
+        with self._lock:  # queued first: the echo may be read by another thread at once
+            self._pending.append(key)
+        try:
+            self._inner.send(msg, timeout)
+        except BaseException:
+            with self._lock:  # never went out: no echo will come
+                for i in range(len(self._pending) - 1, -1, -1):
+                    if self._pending[i] == key:
+                        del self._pending[i]
+                        break
+            raise
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        wait = timeout
+        while True:
+            msg = self._inner.recv(wait)
+            if msg is None:
+                return None, False
+            with self._lock:
+                own = bool(self._pending) and self._pending[0] == _frame_key(msg)
+                if own:
+                    self._pending.popleft()
+            self.log.log(msg, received=not own)
+            if not own:
+                return msg, False
+            if deadline is not None:
+                wait = max(0.0, deadline - time.monotonic())
+
+    def shutdown(self) -> None:
+        """Log the echoes still waiting (the last frames sent), then stop; a frame whose
+        echo never came (the socket's receive buffer overflowed) is logged as sent, last."""
+        while self._pending and self._recv_internal(0.0)[0] is not None:
+            pass  # frames of other nodes read here are logged too: they were on the bus
+        with self._lock:
+            for key in self._pending:
+                cob_id, extended, remote, dlc, data = key
+                frame = can.Message(
+                    arbitration_id=cob_id,
+                    is_extended_id=extended,
+                    is_remote_frame=remote,
+                    dlc=dlc,
+                    data=data,
+                )
+                self.log.log(frame, received=False)
+            self._pending.clear()
+        super().shutdown()

@@ -10,6 +10,7 @@ reason is printed), 2 bad arguments or files.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass, field
@@ -19,7 +20,8 @@ import can
 
 from plant_sim.axis import AxisConfig
 from regulator import RegulatorConfig
-from virtual_bus import BusConfig, bus_load, open_bus
+from virtual_bus import BusConfig, Interface, bus_load, open_bus
+from virtual_bus.frame_guard import FrameFault
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 from .busload import layout_load
@@ -30,7 +32,7 @@ from .layout import CycleLayout
 from .node import DEFAULT_OVERRUN_LIMIT, Bridge, BridgeConfig
 from .objects import params_with_store
 from .params import BridgeParams
-from .recorder import BusLog, TraceRecorder, log_channel
+from .recorder import BusLog, TraceRecorder, WireOrderBus, log_channel
 from .scaling import LOAD_INCREMENTS_PER_UNIT
 from .store import ParameterStore
 from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
@@ -65,6 +67,8 @@ class RunResult:
     missed_tpdos: int
     late_tpdos: int
     skipped_syncs: int
+    #: frames the frame guard refused, by kind (2110h; FrameFault order, sub-index 1 first)
+    refused_frames: tuple[tuple[FrameFault, int], ...] = ()
 
 
 def params_for(options: RunOptions) -> BridgeParams:
@@ -114,7 +118,11 @@ def run_bridge(options: RunOptions) -> RunResult:
             options.bridge.drive_id,
             ParameterStore(store_path),
         )
-    bus = open_bus(options.bus)  # first: a bus that cannot open is the one thing to say
+    config = options.bus
+    if options.bus_log_path is not None and config.interface is Interface.SOCKETCAN:
+        # the log in the wire's order: the kernel hands the bridge its own frames back
+        config = dataclasses.replace(config, receive_own_messages=True)
+    bus = open_bus(config)  # first: a bus that cannot open is the one thing to say
     try:
         return _run_on(bus, options, params)
     finally:
@@ -133,6 +141,9 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
     bus_log = None
     if options.bus_log_path is not None:
         bus_log = BusLog(options.bus_log_path, channel=log_channel(options.bus))
+        if options.bus.interface is Interface.SOCKETCAN:
+            bus = WireOrderBus(bus, bus_log)  # it logs; the bridge does not
+            bus_log = None
     bridge = Bridge(
         bus,
         params,
@@ -151,6 +162,9 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
         return _loop(bridge, options, bridge.controller.params)
     finally:
         bridge.close()
+        if isinstance(bus, WireOrderBus):  # it wrote the log: the bridge had none to close
+            bus.shutdown()
+            bus.log.close()
 
 
 def _command_line_over_store(bridge: Bridge, options: RunOptions) -> None:
@@ -199,6 +213,7 @@ def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResul
             c.command(Command.DISABLE)
         # two more cycles: the RPDO "switch on, no motion" and the SYNC that latches it
         bridge.run(cycles=2)
+        bridge.drain()  # what came meanwhile passes the frame guard too (counted, logged)
     timing = bridge.timing
     return RunResult(
         cycles=n,
@@ -207,4 +222,5 @@ def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResul
         missed_tpdos=bridge.counters.missed,
         late_tpdos=bridge.counters.late,
         skipped_syncs=timing.skipped_syncs,
+        refused_frames=tuple((fault, bridge.guard.count(fault)) for fault in FrameFault),
     )

@@ -87,7 +87,8 @@ def test_bus_log_is_candump_format_and_flushed(tmp_path: Path) -> None:
 def test_bus_log_file_is_python_cans_byte_for_byte(tmp_path: Path, channel: str) -> None:
     """BusLog writes the common frame itself (a shorter path); the file must be the one
     python-can's CanutilsLogWriter writes for the same frames and timestamps: standard,
-    extended, remote, error and FD frames, a clock that steps back, both directions."""
+    extended, remote, error and FD frames, a clock that steps back, both directions; a
+    remote frame's DLC as candump writes it (tests/peers checks against candump itself)."""
     frames = [
         can.Message(arbitration_id=0x80, data=b"", is_extended_id=False),
         can.Message(arbitration_id=0x182, data=bytes(range(8)), is_extended_id=False),
@@ -114,4 +115,9 @@ def test_bus_log_file_is_python_cans_byte_for_byte(tmp_path: Path, channel: str)
         writer.on_message_received(expected)
     log.close()
     writer.stop()
-    assert ours.read_bytes() == reference.read_bytes()
+    # but a remote frame's DLC, which candump writes after the R and python-can's writer
+    # leaves out (its reader takes it)
+    expected = reference.read_text().replace(" 602#R ", " 602#R8 ")
+    assert ours.read_text() == expected
+    remote = [m for m in can.LogReader(str(ours)) if m.is_remote_frame]
+    assert remote and all(m.dlc == 8 and m.arbitration_id == 0x602 for m in remote)
