@@ -6,7 +6,11 @@
   registers it with ``leak_allowance.keep(thread_or_virtual_bus)``.
 * ``bus_mode``: each bus mode (``virtual``; ``socketcan`` on vcan0, marked ``vcan``);
   ``bus_pair``: two connected buses of that mode, shut down at teardown.
-* Tests marked ``vcan`` are skipped where vcan0 is not available.
+* Tests marked ``vcan`` are skipped where vcan0 is not available. ``dev.py test`` runs the
+  suite in two parts where the host has no SocketCAN (:data:`VCAN_PART_ENV`): ``without``
+  deselects the tests marked ``vcan`` (the host's part), ``only`` keeps just them (the part
+  run in a User-mode Linux guest, ``python -m virtual_bus guest``), where a missing vcan0
+  fails them instead of skipping them.
 * ``private_netns``: a private network namespace (``virtual_bus.netns``) created for the test
   and removed after it; skips with the reason where ``ip netns`` is not allowed (not root, no
   iproute2). ``subprocess_env``: the environment for a Python subprocess that imports this
@@ -114,6 +118,30 @@ def no_leaks(leak_allowance: LeakAllowance) -> Iterator[None]:
         pytest.fail("test leaked: " + "; ".join(problems), pytrace=False)
 
 
+#: ``without``: deselect the tests marked vcan; ``only``: deselect all others (see above).
+VCAN_PART_ENV = "BACKLASH_BRIDGE_VCAN_PART"
+
+
+def _vcan_part() -> str | None:
+    part = os.environ.get(VCAN_PART_ENV) or None
+    if part not in (None, "without", "only"):
+        raise pytest.UsageError(f"{VCAN_PART_ENV}={part!r}: allowed 'without', 'only' or unset")
+    return part
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    part = _vcan_part()
+    if part is None:
+        return
+    want = part == "only"
+    keep, drop = [], []
+    for item in items:
+        (keep if (item.get_closest_marker("vcan") is not None) == want else drop).append(item)
+    if drop:
+        config.hook.pytest_deselected(items=drop)
+        items[:] = keep
+
+
 @functools.cache
 def _vcan_skip_reason() -> str | None:
     if Interface.SOCKETCAN in available_modes():
@@ -123,6 +151,8 @@ def _vcan_skip_reason() -> str | None:
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
     if item.get_closest_marker("vcan") is not None and (reason := _vcan_skip_reason()):
+        if _vcan_part() == "only":  # the guest was to have vcan0: a failure, not a skip
+            pytest.fail(reason, pytrace=False)
         pytest.skip(reason)
 
 
