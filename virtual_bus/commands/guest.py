@@ -92,8 +92,8 @@ def run(args: argparse.Namespace) -> int:
     out, err = default_streams()
     result = run_in_guest(command, kernel, config, out, err)
     progress.stage(
-        f"guest: booted in {result.boot_s:.1f} s, `{command[0]}` exited {result.returncode}, "
-        f"{result.wall_s:.1f} s in all"
+        f"booted in {result.boot_s:.1f} s; `{Path(command[0]).name}` exited "
+        f"{result.returncode}; {result.wall_s:.1f} s in the guest"
     )
     return result.returncode
 
