@@ -388,12 +388,14 @@ def fetch_kernel(cache: Path | None = None, runner: Runner = _run) -> Kernel:
     that libc (``patchelf --set-interpreter``, ``--set-rpath``). Returns the :class:`Kernel`
     (not yet probed). A complete earlier fetch is replaced only when this one succeeds."""
     cache = cache if cache is not None else cache_dir()
-    for tool, package in (
-        ("apt-get", "apt"),
-        ("dpkg-deb", "dpkg"),
-        ("patchelf", "patchelf"),
-    ):
-        require_tool(tool, package)
+    for tool in ("apt-get", "dpkg-deb"):
+        if shutil.which(tool) is None:
+            raise GuestError(
+                f"fetching a kernel needs {tool} (Debian, Ubuntu) and there is none here: "
+                "install user-mode-linux by other means and give --kernel PATH",
+                problem=GuestProblem.MISSING_TOOL,
+            )
+    require_tool("patchelf", "patchelf")
     if not DEBIAN_KEYRING.is_file():
         raise GuestError(
             f"{DEBIAN_KEYRING} is missing: apt cannot check Debian's archive "

@@ -27,6 +27,7 @@ from virtual_bus.guest_kernel import (
     Kernel,
     cpu_flags,
     describe_kernel,
+    fetch_kernel,
     find_kernel,
     module_order,
     require_tool,
@@ -90,6 +91,16 @@ def test_a_missing_program_names_its_package() -> None:
     assert err.value.problem is GuestProblem.MISSING_TOOL
     assert "apt-get install busybox-static" in str(err.value)
     assert isinstance(err.value, OSError)
+
+
+def test_fetching_without_apt_says_what_to_do_and_changes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("PATH", str(tmp_path))  # no apt-get, dpkg-deb, patchelf
+    with pytest.raises(GuestError, match="needs apt-get") as err:
+        fetch_kernel(tmp_path / "cache")
+    assert err.value.problem is GuestProblem.MISSING_TOOL and "--kernel PATH" in str(err.value)
+    assert not (tmp_path / "cache").exists()
 
 
 # --- the kernel's modules ----------------------------------------------------------------------
