@@ -18,7 +18,7 @@ answer), the bridge's own share (both TPDOs in -> RPDO sent), SYNC lateness agai
 and its jitter, histograms, skipped SYNCs, overruns, cycles without all TPDOs, CPU time of the
 loop's thread and of the drive process per cycle, CPU use of both processes, and what the
 host took: the gaps of a clock-reading thread before the run (:func:`host_floor`) and the
-hypervisor's steal time per CPU during it (:func:`steal_s`).
+hypervisor's steal time per CPU during it (:func:`virtual_bus.realtime.steal_s`).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ from virtual_bus import BusConfig, open_bus
 from virtual_bus.contract import heartbeat_cob_id
 from virtual_bus.formats.axis import AxisConfig, dump_axis
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
-from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
+from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime, host_steal_s
 
 #: Wall time the drive process gets to boot (loading its compiled physics), s.
 DRIVE_BOOT_TIMEOUT_S = 120.0
@@ -100,27 +100,6 @@ def _entered(ns: NetworkNamespace) -> Iterator[None]:
             libc.setns(own, CLONE_NEWNET)
     finally:
         os.close(own)
-
-
-def steal_s(stat_text: str) -> dict[str, float]:
-    """Time the hypervisor ran something else while each CPU had work (the ``steal`` column
-    of ``/proc/stat``, in USER_HZ ticks), s per CPU ("cpu0", ...). On a virtual machine a
-    thread can lose the CPU for milliseconds this way, whatever its priority."""
-    tick = os.sysconf("SC_CLK_TCK")
-    out = {}
-    for line in stat_text.splitlines():
-        fields = line.split()
-        if fields and fields[0].startswith("cpu") and fields[0] != "cpu" and len(fields) > 8:
-            out[fields[0]] = int(fields[8]) / tick
-    return out
-
-
-def host_steal_s() -> dict[str, float]:
-    """:func:`steal_s` of this host now (empty where there is no /proc/stat)."""
-    try:
-        return steal_s(Path("/proc/stat").read_text())
-    except OSError:
-        return {}
 
 
 def _proc_cpu_s(pid: int) -> float:

@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hil.bench_realtime import host_steal_s
+    from virtual_bus.realtime import host_steal_s
 
     from ..host_latency import HostLatencyError, json_doc, measure
 

@@ -89,18 +89,3 @@ def test_the_drive_process_gets_the_loops_real_time_options_one_priority_lower()
     )
     assert drive_options(RealTimeOptions(rt_priority=1), None) == ["--rt-priority", "1"]
     assert drive_options(RealTimeOptions(), None) == []
-
-
-def test_steal_time_is_read_per_cpu_from_proc_stat() -> None:
-    import os
-
-    from hil.bench_realtime import steal_s
-
-    tick = os.sysconf("SC_CLK_TCK")
-    text = (
-        "cpu  10 0 5 100 1 0 2 300 0 0\n"
-        "cpu0 5 0 2 50 0 0 1 100 0 0\n"
-        "cpu1 5 0 3 50 1 0 1 200 0 0\n"
-        "intr 12345\n"
-    )
-    assert steal_s(text) == {"cpu0": 100 / tick, "cpu1": 200 / tick}
