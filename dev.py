@@ -252,7 +252,7 @@ FIRST_RUN_TESTS = (
 
 
 def _demo_cmd(rest: Sequence[str], quiet: bool) -> list[str]:
-    cmd = [str(PY), "-m", "bridge", "demo", *(rest or ["--out", "out/demo"])]
+    cmd = [str(PY), "-m", "hil", "demo", *(rest or ["--out", "out/demo"])]
     return [*cmd, "--quiet"] if quiet else cmd
 
 
@@ -400,7 +400,7 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
         ),
         Bench(
             "bridge-demo",
-            ("bridge", "demo", "--out", "{out}"),
+            ("hil", "demo", "--out", "{out}"),
             "summary.json",
             (
                 Figure("over the bus: p2p reduction", "p2p_reduction", "%", 100.0),
@@ -462,7 +462,7 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
         ),
         Bench(
             "bridge-bench",
-            ("bridge", "bench", "--seconds", f"{realtime_s:g}", "--json", "{out}/bench.json"),
+            ("hil", "bench", "--seconds", f"{realtime_s:g}", "--json", "{out}/bench.json"),
             "bench.json",
             (
                 Figure("lockstep, full stack", "lockstep.cycles_per_s", "cycles/s"),
@@ -506,7 +506,7 @@ def _realtime_bench(rate_hz: int, seconds: float) -> Bench:
     return Bench(
         f"bridge-realtime-{rate_hz // 1000}k",
         (
-            "bridge",
+            "hil",
             "bench",
             "--skip-lockstep",
             "--seconds",
@@ -642,7 +642,7 @@ def bench(argv: Sequence[str], quiet: bool, run: Callable[[Bench, bool], dict] =
         "--realtime-seconds",
         type=float,
         default=60.0,
-        help="length of bridge bench's real-time run (default 60)",
+        help="length of hil bench's real-time run (default 60)",
     )
     parser.add_argument(
         "--only", nargs="+", metavar="NAME", help="only these benchmarks (names: see the table)"

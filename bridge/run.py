@@ -18,9 +18,9 @@ from pathlib import Path
 
 import can
 
-from plant_sim.axis import AxisConfig
 from regulator import RegulatorConfig
 from virtual_bus import BusConfig, Interface, bus_load, open_bus
+from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.frame_guard import FrameFault
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 

@@ -32,7 +32,8 @@ from pathlib import Path
 import can
 import canopen
 import pytest
-from live_bus import (  # tests/peers helper module
+
+from tests.peers.live_bus import (
     ROOT,
     Frame,
     Program,
@@ -44,9 +45,8 @@ from live_bus import (  # tests/peers helper module
     need_programs,
     read_log,
 )
-
-from plant_sim.axis import dump_axis, load_axis
 from virtual_bus.busload import frame_bits
+from virtual_bus.formats.axis import dump_axis, load_axis
 
 pytestmark = pytest.mark.vcan
 

@@ -11,7 +11,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from live_bus import ROOT, Program, bridge_argv, drive_process
+
+from tests.peers.live_bus import ROOT, Program, bridge_argv, drive_process
 
 pytestmark = pytest.mark.vcan
 
