@@ -246,7 +246,8 @@ def _two_parts(rest: Sequence[str], problem: str, quiet: bool, env: dict[str, st
 #: bridges and guests: selected by name, so that they are found wherever they live.
 FIRST_RUN_TESTS = (
     "bridge_commands_run_or_refuse or loop_over_the_bus or other_pdo_numbers"
-    " or sdo_configuration_while or drive_process or two_processes or compiles_before"
+    " or sdo_configuration_while or (drive and test_process) or two_processes"
+    " or compiles_before or waits_for_the_drive"
     " or candump or cangen or canbusload or lockstep_frames or persistent_pdo_loss"
 )
 
