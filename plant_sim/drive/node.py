@@ -146,11 +146,18 @@ class DriveNmt:
             self._on_state(old, new)
 
     def boot(self) -> None:
-        """Send the boot-up message and enter Pre-operational."""
+        """Enter Pre-operational, announced by the boot-up message.
+
+        The state is Pre-operational before the boot-up message leaves: a master may answer
+        it at once with an SDO request, and the frame guard reads the state as the request
+        arrives (on a busy one-CPU guest a request came before the state changed and was
+        refused "not in state"). The transition's actions (the heartbeat starts) follow the
+        message, so that the boot-up is the node's first frame (CiA 301)."""
         with self._lock:
             self._set(NmtState.INITIALISING)
+            self.state = NmtState.PRE_OPERATIONAL
             self.network.send_message(HEARTBEAT_BASE + self.id, b"\x00")
-            self._set(NmtState.PRE_OPERATIONAL)
+            self._on_state(NmtState.INITIALISING, NmtState.PRE_OPERATIONAL)
 
     def execute(self, command: NmtCommand) -> None:
         with self._lock:

@@ -61,12 +61,14 @@ def _bridge_argv(interface: str, channel: str, log: Path, trace: Path) -> list[s
 
 
 def read_drive(bus: can.BusABC) -> dict[str, int]:
-    """python canopen's master: SDO uploads of what the bridge left behind."""
+    """python canopen's master: SDO uploads of what the bridge left behind (10 s for an
+    answer: a busy host may hold one longer than canopen's 0.3 s default)."""
     network = canopen.Network(bus)
     network.NOTIFIER_CYCLE = 0.05
     network.connect()
     try:
         node = network.add_node(2, str(EDS))
+        node.sdo.RESPONSE_TIMEOUT = 10.0
         return {
             "load_nm": node.sdo[0x60E4][1].raw,
             "statusword": node.sdo[0x6041].raw,

@@ -1,0 +1,56 @@
+"""The boot-up message means "ready for SDO" (CiA 301: it is sent on the transition to
+Pre-operational, and a master may answer it at once with an SDO request).
+
+On a busy one-CPU guest a master's request reached the drive before the drive had changed
+its state after sending the boot-up, and the frame guard refused it ("not in state"): the
+master's SDO timed out. Checked without a clock: at the instant the boot-up leaves, the
+drive's own frame guard admits an SDO request, and no heartbeat went out before it.
+"""
+
+from __future__ import annotations
+
+import uuid
+
+import can
+
+from plant_sim.drive import SimulatedDrive
+from plant_sim.drive.node import NmtState
+from virtual_bus.formats.axis import load_axis
+from virtual_bus.frame_guard import FrameFault
+from virtual_bus.inprocess import InProcessBus
+
+AXIS = load_axis("config/paper_axis.toml")
+
+
+class Watching(InProcessBus):
+    """The drive's end of the bus: at each frame it sends, what its guard would say to an
+    SDO request (0x602, 8 bytes) and its NMT state."""
+
+    def __init__(self, channel: str) -> None:
+        super().__init__(channel)
+        self.drive: SimulatedDrive | None = None
+        self.seen: list[tuple[int, bytes, FrameFault | None, NmtState]] = []
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        assert self.drive is not None
+        verdict = self.drive.guard.classify(0x602, 8)
+        self.seen.append((msg.arbitration_id, bytes(msg.data), verdict, self.drive.nmt_state))
+        super().send(msg, timeout)
+
+
+def test_an_sdo_request_answering_the_boot_up_is_admitted() -> None:
+    channel = f"boot-{uuid.uuid4().hex[:10]}"
+    bus = Watching(channel)
+    try:
+        drive = SimulatedDrive(bus, 2, AXIS)
+        bus.drive = drive
+        drive.start()
+        try:
+            first = bus.seen[0]
+            assert first[:2] == (0x702, b"\x00")  # the boot-up is the drive's first frame
+            assert first[2] is None  # an SDO request now is admitted ...
+            assert first[3] is NmtState.PRE_OPERATIONAL  # ... in Pre-operational
+        finally:
+            drive.stop()
+    finally:
+        bus.shutdown()
