@@ -287,10 +287,9 @@ def _boot(
                         break
                     if now - last > config.stall_s:
                         _stop(proc)
-                        keep = True
                         raise GuestError(
                             f"the guest wrote nothing for {config.stall_s:g} s and was stopped "
-                            f"(last line: {_last(outs, console)}); console kept in {console_path}",
+                            f"(last line: {_last(outs, console)})",
                             problem=GuestProblem.STALLED,
                         )
                     time.sleep(POLL_S)
