@@ -4,8 +4,9 @@ Written independently of the servers (virtual_bus.sdo_server, bridge.objects,
 plant_sim.drive.od): the EDS is read with :mod:`configparser` (not canopen), the data type
 sizes come from CiA 301 table 44 written out here, and the order of the checks is the one of
 CiA 301 7.2.4 / CANopenNode: object, sub-index, access, length, value against the EDS limits
-(REAL32 too, NaN outside every range), then the application. :func:`expected` returns the abort code a write must get, or
-:data:`APPLICATION` when only the device's own rules decide (success or a value/state code).
+(REAL32 too, NaN outside every range), then the application. :func:`expected` returns the
+abort code a write must get, or :data:`APPLICATION` when only the device's own rules decide
+(success or a value/state code).
 """
 
 from __future__ import annotations
