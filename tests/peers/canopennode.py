@@ -32,7 +32,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+from tests.paths import ROOT as REPO
+
 #: Upper bound of any wait for canopend's output (a stuck program, not a slow machine).
 BOUND_S = 120.0
 #: SDO client time-out of the gateway, ms (CANopenNode's default 500 ms is short for a

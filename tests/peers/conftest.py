@@ -18,16 +18,16 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
-import canopennode as cn
 import pytest
-from peers_common import AXIS_FILE, BRIDGE_ID, DRIVE_ID
 
 from bridge.cycle import Command
 from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
 from bridge.timing import LockstepPacer
-from plant_sim.axis import load_axis
+from tests.peers import canopennode as cn
+from tests.peers.peers_common import AXIS_FILE, BRIDGE_ID, DRIVE_ID
 from virtual_bus import BusConfig, Interface, open_bus
+from virtual_bus.formats.axis import load_axis
 
 
 @pytest.fixture(scope="session")

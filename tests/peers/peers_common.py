@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+from tests.paths import CONFIG
 
-REPO = Path(__file__).resolve().parents[2]
-AXIS_FILE = REPO / "config" / "paper_axis.toml"
-DRIVE_EDS = REPO / "config" / "drive.eds"
-BRIDGE_EDS = REPO / "config" / "bridge.eds"
+AXIS_FILE = CONFIG / "paper_axis.toml"
+DRIVE_EDS = CONFIG / "drive.eds"
+BRIDGE_EDS = CONFIG / "bridge.eds"
 #: The bridge, the simulated drive, and CANopenNode's canopend (as master or demo slave).
 BRIDGE_ID, DRIVE_ID, GATEWAY_ID = 1, 2, 5

@@ -21,13 +21,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import can
-import canopennode as cn
-import eds_predict as ep
 import pytest
-import sdo_oracle as oracle
-from peers_common import BRIDGE_EDS, BRIDGE_ID, DRIVE_EDS, DRIVE_ID, GATEWAY_ID
 
+import tests.sdo_oracle as oracle
 from bridge.node import Bridge
+from tests.peers import canopennode as cn
+from tests.peers import eds_predict as ep
+from tests.peers.peers_common import BRIDGE_EDS, BRIDGE_ID, DRIVE_EDS, DRIVE_ID, GATEWAY_ID
 from virtual_bus import BusConfig, Interface, open_bus
 
 pytestmark = pytest.mark.vcan

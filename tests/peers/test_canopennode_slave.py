@@ -22,10 +22,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import canopen
-import canopennode as cn
 import pytest
 from canopen.objectdictionary import ODVariable
-from peers_common import GATEWAY_ID
+
+from tests.peers import canopennode as cn
+from tests.peers.peers_common import GATEWAY_ID
 
 pytestmark = pytest.mark.vcan
 

@@ -16,19 +16,19 @@ from pathlib import Path
 
 import can
 import canopen
-import eds_predict as ep
 import pytest
-import sdo_oracle  # noqa: F401  (tests/ helper: works around a canopen client bug)
 from canopen.sdo import SdoAbortedError, SdoClient
-from peers_common import AXIS_FILE, BRIDGE_EDS, BRIDGE_ID, DRIVE_EDS, DRIVE_ID
 
+import tests.sdo_oracle  # noqa: F401  (tests/ helper: works around a canopen client bug)
 from bridge import od as objdict
 from bridge.cycle import Command
 from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
 from bridge.timing import LockstepPacer
-from plant_sim.axis import load_axis
-from plant_sim.drive.probe import virtual_rig
+from plant_sim.drive.rig import virtual_rig
+from tests.peers import eds_predict as ep
+from tests.peers.peers_common import AXIS_FILE, BRIDGE_EDS, BRIDGE_ID, DRIVE_EDS, DRIVE_ID
+from virtual_bus.formats.axis import load_axis
 
 RANDOM_WRITES = 10_000
 TIMEOUT_S = 10.0  # a bound for a stuck server, never reached when all is well
