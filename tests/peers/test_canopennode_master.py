@@ -33,7 +33,7 @@ from virtual_bus import BusConfig, Interface, open_bus
 pytestmark = pytest.mark.vcan
 
 #: Random writes per node through the gateway (each also reads what its rules need).
-GATEWAY_RANDOM_WRITES = 1500
+GATEWAY_RANDOM_WRITES = 3000
 #: Heartbeat consumer time CANopenNode is given for both nodes, ms (5 heartbeats of 100 ms).
 CONSUMER_MS = 500
 HEARTBEAT_MS = 100
