@@ -15,13 +15,25 @@ from collections.abc import Sequence
 import can
 
 from plant_sim.errors import PlantSimError
+from regulator.errors import RegulatorError
 from virtual_bus import VirtualBusError, cli
 from virtual_bus.errors import BusUnavailableError, RealTimeRefused
 
 from .commands.common import PROG
 from .errors import BridgeError, DriveSetupError
 
-COMMANDS = ("run", "demo", "busload", "bench", "host_latency", "eds", "config", "probe")
+COMMANDS = (
+    "run",
+    "demo",
+    "busload",
+    "bench",
+    "host_latency",
+    "eds",
+    "config",
+    "probe",
+    "freqresp",
+    "tune",
+)
 DESCRIPTION = (
     "CANopen bridge running the backlash regulator of Mohammadiasl, 'Vibration Detection and "
     "Backlash Suppression in Machine Tools' (eq. 7, 15) against a CiA 402 drive in cyclic "
@@ -32,7 +44,7 @@ FAILURES = (
     cli.Failure((DriveSetupError,), cli.EXIT_FAILURE, "drive start-up failed"),
     cli.Failure((RealTimeRefused,), cli.EXIT_FAILURE, "refused"),
     cli.Failure((BusUnavailableError,), cli.EXIT_FAILURE),
-    cli.Failure((BridgeError, PlantSimError, VirtualBusError)),
+    cli.Failure((BridgeError, PlantSimError, VirtualBusError, RegulatorError)),
     cli.Failure((can.CanError,), cli.EXIT_FAILURE, "CAN bus error"),
     cli.FILE_ERRORS,
     cli.Failure((OSError,), cli.EXIT_FAILURE),

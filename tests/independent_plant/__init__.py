@@ -27,6 +27,6 @@ sensor time offset      history per speed cycle                        history p
 matrix. Trace files are written with :class:`plant_sim.trace.Trace` (the FILE format only).
 """
 
-from .plant import COLUMNS, PlantOptions, parameters, simulate
+from .plant import COLUMNS, PlantOptions, SteppedPlant, parameters, simulate
 
-__all__ = ["COLUMNS", "PlantOptions", "parameters", "simulate"]
+__all__ = ["COLUMNS", "PlantOptions", "SteppedPlant", "parameters", "simulate"]
