@@ -24,7 +24,7 @@ from plant_sim.model import AxisPlant, KernelOptions
 from plant_sim.simulate import References, simulate
 from regulator import RegulatorConfig
 from regulator.frequency_response import antiresonance, bandwidth
-from regulator.tuning import MotionProfile, Record, SafetyLimits, safety_stop
+from regulator.tuning import MotionProfile, Record, SafetyLimits, TuningError, safety_stop
 
 from .loop import Plant, run_loop
 
@@ -97,9 +97,9 @@ def frequency_response(
     config = RegulatorConfig(kv=kv, cycle_s=plan.cycle_s, enabled=False)
     trace = run_loop(plant, table.position, table.speed, kr, config, velocity_feedforward=1.0)
     if np.max(np.abs(trace.torque)) > plan.torque_limit:
-        raise ValueError(
-            f"torque {np.max(np.abs(trace.torque)):.4g} beyond the test's limit "
-            f"{plan.torque_limit:g}: lower the amplitude"
+        raise TuningError(
+            f"torque {np.max(np.abs(trace.torque)):.4g} N m beyond the test's limit "
+            f"{plan.torque_limit:g}: lower the amplitude (the drive would have been stopped)"
         )
     rec = Recording(
         trace.position_reference,
@@ -130,3 +130,28 @@ def frequency_response(
 
 def kernel_plant(axis: AxisConfig) -> Callable[[float], AxisPlant]:
     return lambda start: AxisPlant(axis, position=start)
+
+
+def analytic_loop(axis: AxisConfig, frequency_hz: np.ndarray) -> np.ndarray | None:
+    """Eq. 6a of the axis' linearised two-mass model (backlash closed, friction left out),
+    with its current lag and the delays of the sampled loop: the cycle the set point waits for
+    the next SYNC, half a cycle of its zero-order hold, half a speed cycle of the drive's
+    backward-difference speed; None for a rigid axis or one without PI speed loop."""
+    from regulator.twomass import TwoMass
+
+    m, c = axis.mechanics, axis.control
+    if m.antiresonance is None or c.tsi is None:
+        return None
+    model = TwoMass(
+        axis.motor_side_inertia,
+        axis.load_inertia_reflected,
+        m.antiresonance,
+        m.damping_ratio or 0.0,
+    )
+    return model.speed_loop(
+        frequency_hz,
+        c.ksp,
+        c.tsi,
+        c.current_lag or 0.0,
+        delay_s=1.5 * c.position_cycle + 0.5 * c.speed_cycle,
+    )

@@ -56,6 +56,9 @@ SETTLE_TIMES_KV = 10.0
 LAMBDA_RECOVERED = 0.9
 #: Standstill error is averaged over the dwell's last this many seconds.
 STANDSTILL_AVERAGE_S = 0.1
+#: A window judged for oscillation lasts at least this many periods of eq. 13's lowest
+#: frequency k_v / 4 (20 / k_v seconds: eq. 14's T_v), so the band-pass has settled in it.
+MIN_WINDOW_PERIODS = 5.0
 
 
 class TuningError(RegulatorError, ValueError):
@@ -91,7 +94,7 @@ class TuningMotion:
     accel: float = 0.1
     high_s: float = 0.5
     low_s: float = 1.5
-    dwell_s: float = 1.0
+    dwell_s: float = 1.5
 
     def __post_init__(self) -> None:
         for name in ("feed", "low_feed", "accel", "high_s", "low_s", "dwell_s"):
@@ -120,6 +123,7 @@ class TuningMotion:
         rest: list[tuple[int, int]] = []
         n = 0
         settle = round(SETTLE_TIMES_KV / kv / cycle_s)
+        shortest = math.ceil(MIN_WINDOW_PERIODS * 4.0 / kv / cycle_s)
         for sign in (1.0, -1.0):
             level = 0.0
             for target, hold_s, kind in (
@@ -133,16 +137,17 @@ class TuningMotion:
                 speeds += [sign * ramp, np.full(hold, sign * target)]
                 n += steps
                 if kind == "watch":
-                    if hold <= settle + 10:
+                    if hold < settle + shortest:
                         raise TuningError(
                             f"low_s = {self.low_s:g} s: the watch window must outlast the "
-                            f"transient of {settle * cycle_s:g} s (10 / k_v) by some cycles"
+                            f"transient of {settle * cycle_s:g} s (10 / k_v) by "
+                            f"{shortest * cycle_s:g} s (5 periods of k_v / 4)"
                         )
                     watch.append((n + settle, n + hold))
                 elif kind == "dwell":
                     last = round(STANDSTILL_AVERAGE_S / cycle_s)
                     standstill.append((n + hold - last, n + hold))
-                    if hold > settle + 30:
+                    if hold >= settle + shortest:  # else too short to judge oscillation
                         rest.append((n + settle, n + hold))
                 n += hold
                 level = target
@@ -255,7 +260,7 @@ def _band_amplitude(signal: np.ndarray, cycle_s: float, kv: float) -> float:
     t = np.linspace(-1.0, 1.0, signal.size)
     x = signal - np.polyval(np.polyfit(t, signal, 3), t)
     edge = x.size // 10
-    y = sosfiltfilt(sos, x)[edge : x.size - edge]
+    y = sosfiltfilt(sos, x, padlen=x.size - 1)[edge : x.size - edge]
     crossings = np.nonzero(np.signbit(y[1:]) != np.signbit(y[:-1]))[0] + 1
     if crossings.size < 2:
         return 0.0

@@ -13,11 +13,13 @@ s = j omega, all speeds at the motor, torques in N m:
 * eq. 6a: the PI speed loop on the motor speed,
   ``G_sm = omega_m / omega_c``
   ``= (k_sp T_si s + 1) P / (T_si (J_m + J_l) s^2 Q + (k_sp T_si s + 1) P)``,
-  here with the drive's current loop as a first-order lag ``1 / (1 + s T_i)`` (T_i = 0: the
-  paper's ideal current loop, which makes it eq. 6a exactly) and an optional pure delay.
+  here with the PI written ``k_sp (T_si s + 1) / (T_si s)`` (the printed ``k_sp T_si s + 1``
+  leaves k_sp off the integral term, which is then no torque; the simulator and the
+  independent plant integrate with k_sp / T_si), the drive's current loop as a first-order
+  lag ``1 / (1 + s T_i)`` (T_i = 0: the paper's ideal current loop) and an optional delay.
 
 Pure numpy; used as the analytic reference of the frequency-response measurement
-(:mod:`regulator.frequency_response`) and as the model its antiresonance fit uses.
+(:mod:`regulator.frequency_response`, `python -m hil freqresp`'s Bode figure, the tests).
 """
 
 from __future__ import annotations

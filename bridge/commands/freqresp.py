@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -12,6 +15,9 @@ from regulator.frequency_response import Multisine
 from virtual_bus import cli
 
 from ..commission.session import CommissioningStopped
+
+if TYPE_CHECKING:
+    from ..commission.freqresp import ExcitationPlan, FrequencyResponse
 
 NAME = "freqresp"
 HELP = "excite the speed set point (multisine), measure the speed loop and omega_a (Fig. 2)"
@@ -29,6 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.description = DESCRIPTION
     add_bus_arguments(parser)
+    add_excitation_arguments(parser)
+
+
+def add_excitation_arguments(parser: argparse.ArgumentParser) -> None:
+    """The excitation and its limits (shared with ``python -m hil freqresp``)."""
     parser.add_argument(
         "--torque-limit",
         type=cli.positive_float,
@@ -60,11 +71,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def run(args: argparse.Namespace) -> int:
-    from ..commission.figures import bode_figure, write_json
-    from ..commission.freqresp import ExcitationPlan, measure
-    from .common import regulated_axis
-    from .session_args import started_bridge
+def plan_maker(args: argparse.Namespace) -> Callable[[float], ExcitationPlan]:
+    """A function cycle_s -> the plan of ``args`` (UsageError for bad combinations)."""
+    from ..commission.freqresp import ExcitationPlan
 
     band = None
     if args.notch_band is not None:
@@ -73,7 +82,6 @@ def run(args: argparse.Namespace) -> int:
         band = (float(args.notch_band[0]), float(args.notch_band[1]))
     if not math.isfinite(args.offset_speed):
         raise cli.UsageError("--offset-speed: a finite number")
-    out = args.out
 
     def make_plan(cycle_s: float) -> ExcitationPlan:
         return ExcitationPlan(
@@ -87,14 +95,18 @@ def run(args: argparse.Namespace) -> int:
             notch_band_hz=band,
         )
 
-    make_plan(regulated_axis(args.axis).control.position_cycle)  # bad values: before the bus
-    with started_bridge(args) as bridge:
-        plan = make_plan(bridge.controller.params.cycle_s)
-        try:
-            fr = measure(bridge, plan)
-        except CommissioningStopped as exc:
-            print(f"python -m bridge freqresp: {exc}", file=sys.stderr)
-            return 1
+    return make_plan
+
+
+def write_results(
+    fr: FrequencyResponse,
+    out: Path,
+    title: str,
+    reference: tuple[str, np.ndarray, np.ndarray] | None = None,
+) -> None:
+    """freqresp.json, freqresp.csv, bode.png in ``out``; prints the summary."""
+    from ..commission.figures import bode_figure, write_json
+
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "freqresp.json", fr.summary())
     loop = fr.loop
@@ -104,7 +116,24 @@ def run(args: argparse.Namespace) -> int:
         columns += [np.abs(fr.admittance.response), fr.admittance.std]
         header += ",admittance_magnitude,admittance_std"
     np.savetxt(out / "freqresp.csv", np.column_stack(columns), delimiter=",", header=header)
-    bode_figure(fr, out / "bode.png", f"speed loop of drive {args.drive_id} over the bus")
+    bode_figure(fr, out / "bode.png", title, reference)
     print(fr.describe())
     print(f"wrote {out / 'freqresp.json'}, {out / 'freqresp.csv'}, {out / 'bode.png'}")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..commission.freqresp import measure
+    from .common import regulated_axis
+    from .session_args import started_bridge
+
+    make_plan = plan_maker(args)
+    make_plan(regulated_axis(args.axis).control.position_cycle)  # bad values: before the bus
+    with started_bridge(args) as bridge:
+        plan = make_plan(bridge.controller.params.cycle_s)
+        try:
+            fr = measure(bridge, plan)
+        except CommissioningStopped as exc:
+            print(f"python -m bridge freqresp: {exc}", file=sys.stderr)
+            return 1
+    write_results(fr, args.out, f"speed loop of drive {args.drive_id} over the bus")
     return 0

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from regulator.tuning import Outcome, SearchConfig, TrialResult, TuningError, TuningMotion
 from virtual_bus import cli
 
 from ..commission.session import CommissioningStopped
+
+if TYPE_CHECKING:
+    from ..commission.tune import TuneOptions
 
 NAME = "tune"
 HELP = "find beta_T (eq. 15) by the paper's procedure over the bus; write and store it"
@@ -27,6 +31,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.description = DESCRIPTION
     add_bus_arguments(parser)
+    add_tuning_arguments(parser)
+
+
+def add_tuning_arguments(parser: argparse.ArgumentParser) -> None:
+    """The test motion, the search and the limits (shared with ``python -m hil tune``)."""
     d = TuningMotion()
     s = SearchConfig()
     pf = cli.positive_float
@@ -65,13 +74,12 @@ def trial_line(trial: TrialResult) -> str:
     return f"trial {name}: {trial.verdict.value}{numbers} ({trial.reason})"
 
 
-def run(args: argparse.Namespace) -> int:
-    from ..commission.figures import search_dict, trials_figure, write_json
-    from ..commission.tune import TuneOptions, tune
-    from .session_args import started_bridge
+def options_from(args: argparse.Namespace) -> TuneOptions:
+    """The validated options of ``args`` (UsageError, exit 2, for bad combinations)."""
+    from ..commission.tune import TuneOptions
 
     try:
-        options = TuneOptions(
+        return TuneOptions(
             motion=TuningMotion(
                 args.feed, args.low_feed, args.accel, args.high_s, args.low_s, args.dwell_s
             ),
@@ -88,6 +96,14 @@ def run(args: argparse.Namespace) -> int:
         )
     except ValueError as exc:
         raise cli.UsageError(str(exc)) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..commission.figures import search_dict, trials_figure, write_json
+    from ..commission.tune import tune
+    from .session_args import started_bridge
+
+    options = options_from(args)
     out = args.out
     with started_bridge(args) as bridge:
         cycle_s = bridge.controller.params.cycle_s
