@@ -41,7 +41,8 @@ _RANK = (
 _NOT_A_POSITION = re.compile(
     r"demand|target|limit|window|offset|resolution|factor|hom|range|error|deviation|internal|"
     r"set.?point|command|velocity|speed|current|torque|time|count|number|polarity|type|mode|"
-    r"config|increment|ratio|filter|gain|capture|latch|tolerance|trigger|motor",
+    r"config|increment|ratio|filter|gain|capture|latch|tolerance|trigger|motor|refused|frame|"
+    r"counter|producer|sync|status|word",
     re.I,
 )
 _TYPES = {

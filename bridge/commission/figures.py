@@ -81,6 +81,8 @@ def trials_figure(result: SearchResult, cycle_s: float, path: Path, unit_scale: 
     rows = math.ceil((len(trials) + 1) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 2.6 * rows), squeeze=False)
     flat = list(axes.flat)
+    for row in axes:
+        row[0].set_ylabel("following error" + (", um" if unit_scale == 1e6 else ""), fontsize=8)
     for ax, trial in zip(flat, trials, strict=False):
         rec = trial.record
         e = (rec.position_reference - rec.load_position) * unit_scale
@@ -88,6 +90,7 @@ def trials_figure(result: SearchResult, cycle_s: float, path: Path, unit_scale: 
         ax.plot(t, e, lw=0.6)
         name = "regulator off" if trial.beta_t_rad_s is None else f"beta_T {trial.beta_t_rad_s:.3g}"
         ax.set_title(f"{name}: {trial.verdict.value}", fontsize=9)
+        ax.set_xlabel("s", fontsize=7)
         ax.tick_params(labelsize=7)
     summary = flat[len(trials)]
     betas = [t.beta_t_rad_s for t in result.trials if t.metrics is not None]
