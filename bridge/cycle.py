@@ -30,7 +30,7 @@ from enum import Enum, IntEnum
 from canopen.profiles.p402 import State402
 
 from regulator import BacklashRegulator, PositionController
-from virtual_bus.contract import NmtState
+from virtual_bus.contract import CW_FAULT_RESET, NmtState
 
 from .errors import ParameterError, SdoAbort
 from .interpolator import Interpolator, Move, Table
@@ -131,7 +131,7 @@ def enable_controlword(state: Drive402State, last_controlword: int) -> int:
         return State402.CW_OPERATION_ENABLED
     target = State402.next_state_indirect(state.value)
     cw = State402.TRANSITIONTABLE[(state.value, target)]
-    if cw == State402.CW_SWITCH_ON_DISABLED and last_controlword & 0x0080:
+    if cw == State402.CW_SWITCH_ON_DISABLED and last_controlword & CW_FAULT_RESET:
         return State402.CW_DISABLE_VOLTAGE
     return cw
 

@@ -27,9 +27,9 @@ import can
 import canopen
 from canopen.objectdictionary import ODVariable
 
-from plant_sim.axis import AxisKind
 from virtual_bus import BusConfig, cli, open_bus
 from virtual_bus.contract import NmtCommand
+from virtual_bus.formats.axis import AxisKind
 
 from . import candidates as cand
 from .adapt import (

@@ -7,7 +7,7 @@ read at t_k; eq. 7 on the load scale with the velocity feed-forward, ``omega_c =
 point computed at SYNC k takes effect at SYNC k+1 (the PDO delay). The plant is anything with
 ``advance(speed_setpoint_rad_s, disturbance_nm)`` and the readings ``motor_position_rad``,
 ``motor_speed_rad_s``, ``load_position``, ``motor_torque_nm``: the compiled kernel's
-:class:`plant_sim.model.AxisPlant`, or the tests' independent plant.
+:class:`plant_sim.physics.model.AxisPlant`, or the tests' independent plant.
 """
 
 from __future__ import annotations

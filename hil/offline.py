@@ -2,9 +2,9 @@
 response run on the compiled kernel with the same logic the bridge runs over the bus.
 
 * :func:`kernel_runner` -- a :data:`regulator.tuning.Runner` on
-  :func:`plant_sim.simulate.simulate` (the regulator compiled into the loop, the one-cycle PDO
-  delay of ``KernelOptions(setpoint_delay_cycles=1)``): fast, the section X loop the bridge
-  reproduces to 10 nm (docs/bridge.md);
+  :func:`plant_sim.physics.simulate.simulate` (the regulator compiled into the loop, the
+  one-cycle PDO delay of ``KernelOptions(setpoint_delay_cycles=1)``): fast, the section X
+  loop the bridge reproduces to 10 nm (docs/bridge.md);
 * :func:`frequency_response` -- the bridge's excitation (:class:`bridge.commission.freqresp.
   ExcitationPlan`) through :func:`hil.loop.run_loop` on any steppable plant, estimated like
   the bus command.
@@ -19,12 +19,12 @@ import numpy as np
 
 from bridge.commission.freqresp import ExcitationPlan, FrequencyResponse
 from bridge.commission.session import Recording
-from plant_sim.axis import AxisConfig
-from plant_sim.model import AxisPlant, KernelOptions
-from plant_sim.simulate import References, simulate
+from plant_sim.physics.model import AxisPlant, KernelOptions
+from plant_sim.physics.simulate import References, simulate
 from regulator import RegulatorConfig
 from regulator.frequency_response import antiresonance, bandwidth
 from regulator.tuning import MotionProfile, Record, SafetyLimits, TuningError, safety_stop
+from virtual_bus.formats.axis import AxisConfig
 
 from .loop import Plant, run_loop
 

@@ -5,7 +5,7 @@ shared machine, unlike its clock). Developer tool, not part of the packages.
 
 runs itself under ``valgrind --tool=callgrind --collect-atstart=no
 --toggle-collect=functools_reduce`` and prints the instructions per cycle of the paper's
-section X through the full stack (``bridge bench``'s lockstep run; ``--record``: with the
+section X through the full stack (``hil bench``'s lockstep run; ``--record``: with the
 trace file and the candump log). Only what runs inside one ``functools.reduce`` call is
 counted: the whole ``play_references`` (the start-up is not). ``--drive-sync`` counts instead
 the drive's Python from its SYNC frame (listener entry) to its second TPDO handed to the bus:
@@ -30,12 +30,13 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def _inner(cycles: int, record: bool, drive_sync: bool) -> None:
     sys.path.insert(0, str(ROOT))
-    from bridge import bench
-    from bridge.commands.common import PAPER_AXIS, simulated_axis_file
-    from bridge.sim import play_references, simulated_axis
+    from hil import bench
+    from hil.commands.common import simulated_axis_file
+    from hil.harness import play_references, simulated_axis
     from plant_sim.drive.node import GuardedListener
     from plant_sim.drive.servo import ServoAxis
-    from plant_sim.scenarios import SectionX
+    from plant_sim.paper.scenarios import SectionX
+    from virtual_bus.shipped import PAPER_AXIS
 
     axis = simulated_axis_file(PAPER_AXIS)
     end_s = cycles * axis.control.position_cycle

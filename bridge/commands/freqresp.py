@@ -105,7 +105,7 @@ def write_results(
     reference: tuple[str, np.ndarray, np.ndarray] | None = None,
 ) -> None:
     """freqresp.json, freqresp.csv, bode.png in ``out``; prints the summary."""
-    from ..commission.figures import bode_figure, write_json
+    from ..commission.figures import available, bode_figure, write_json
 
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "freqresp.json", fr.summary())
@@ -116,9 +116,16 @@ def write_results(
         columns += [np.abs(fr.admittance.response), fr.admittance.std]
         header += ",admittance_magnitude,admittance_std"
     np.savetxt(out / "freqresp.csv", np.column_stack(columns), delimiter=",", header=header)
-    bode_figure(fr, out / "bode.png", title, reference)
+    files = [out / "freqresp.json", out / "freqresp.csv"]
+    if available():
+        bode_figure(fr, out / "bode.png", title, reference)
+        files.append(out / "bode.png")
+    else:
+        print(
+            "bode.png not drawn: matplotlib is not installed (pip install 'backlash-bridge[sim]')"
+        )
     print(fr.describe())
-    print(f"wrote {out / 'freqresp.json'}, {out / 'freqresp.csv'}, {out / 'bode.png'}")
+    print("wrote " + ", ".join(str(f) for f in files))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -99,7 +99,7 @@ def options_from(args: argparse.Namespace) -> TuneOptions:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..commission.figures import search_dict, trials_figure, write_json
+    from ..commission.figures import available, search_dict, trials_figure, write_json
     from ..commission.tune import tune
     from .session_args import started_bridge
 
@@ -116,8 +116,11 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     data = search_dict(result) | {"stored": report.stored, "store": report.store_path}
     write_json(out / "tune.json", data)
-    trials_figure(result, cycle_s, out / "trials.png", 1e6)
-    print(f"wrote {out / 'tune.json'}, {out / 'trials.png'}")
+    if available():
+        trials_figure(result, cycle_s, out / "trials.png", 1e6)
+        print(f"wrote {out / 'tune.json'}, {out / 'trials.png'}")
+    else:
+        print(f"wrote {out / 'tune.json'} (trials.png not drawn: matplotlib is not installed)")
     if result.outcome is not Outcome.FOUND:
         print(f"python -m bridge tune: {result.reason}; nothing stored", file=sys.stderr)
         return 1

@@ -16,6 +16,14 @@ from regulator.tuning import SearchResult, TrialResult
 from .freqresp import FrequencyResponse
 
 
+def available() -> bool:
+    """matplotlib is installed (the 'sim' extra): a bridge-only install writes the JSON and
+    CSV reports and says which figure it could not draw."""
+    import importlib.util
+
+    return importlib.util.find_spec("matplotlib") is not None
+
+
 def _pyplot():
     import matplotlib
 

@@ -27,10 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bridge.commands.common import simulated_axis_file
-    from plant_sim.model import AxisPlant
+    from plant_sim.physics.model import AxisPlant
 
     from ..offline import analytic_loop, frequency_response
+    from .common import simulated_axis_file
 
     axis = simulated_axis_file(args.axis)
     plan = plan_maker(args)(axis.control.position_cycle)

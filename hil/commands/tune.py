@@ -31,12 +31,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bridge.commands.common import simulated_axis_file
     from bridge.commission.figures import search_dict, trials_figure, write_json
     from bridge.params import BridgeParams
     from regulator.tuning import Outcome, TuningError, search
 
     from ..offline import base_regulator, kernel_runner, safety_of
+    from .common import simulated_axis_file
 
     axis = simulated_axis_file(args.axis)
     options = options_from(args)

@@ -37,11 +37,11 @@ from types import TracebackType
 import can
 import canopen
 
-from plant_sim.axis import AxisConfig
-from plant_sim.model import AxisPlant
 from virtual_bus.contract import NMT_COB_ID, NMT_LENGTH, SDO_LENGTH, SdoAbort
+from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.frame_guard import FrameFault, FrameGuard
 
+from ..physics.model import AxisPlant
 from . import od as O
 from .cia402 import State402
 from .config import DriveConfig, TimeMode

@@ -28,18 +28,14 @@ from bridge.errors import ParameterError
 from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
 from bridge.timing import LockstepPacer
-from plant_sim.axis import AxisConfig, dump_axis, load_axis
-from plant_sim.report import LIMIT_CYCLE_VISCOUS
+from hil.harness import simulated_axis
+from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
 from regulator import RegulatorConfig
 from regulator.frequency_response import Multisine
 from regulator.tuning import Outcome, TuningError
 from virtual_bus import BusConfig, Interface, open_bus
+from virtual_bus.formats.axis import AxisConfig, dump_axis, load_axis
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
-
-try:
-    from hil.harness import simulated_axis
-except ImportError:  # before the layout move of issue 20
-    from bridge.sim import simulated_axis  # type: ignore[no-redef]
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 PAPER = load_axis(CONFIG / "paper_axis.toml")

@@ -21,13 +21,13 @@ import pytest
 from bridge.commission.freqresp import ExcitationPlan
 from hil.loop import run_loop, trial_runner
 from hil.offline import frequency_response, kernel_runner, safety_of
-from plant_sim.axis import AxisConfig, load_axis
-from plant_sim.report import LIMIT_CYCLE_VISCOUS
-from plant_sim.scenarios import SectionX
+from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
+from plant_sim.paper.scenarios import SectionX
 from regulator import RegulatorConfig
 from regulator.frequency_response import Multisine
 from regulator.tuning import Outcome, SearchConfig, TuningMotion, search
 from tests.independent_plant import SteppedPlant
+from virtual_bus.formats.axis import AxisConfig, load_axis
 
 pytestmark = pytest.mark.slow
 

@@ -14,11 +14,11 @@ import pytest
 from bridge.commission.freqresp import ExcitationPlan
 from hil.__main__ import main
 from hil.offline import analytic_loop, frequency_response
-from plant_sim.axis import dump_axis, load_axis
-from plant_sim.model import AxisPlant
-from plant_sim.report import LIMIT_CYCLE_VISCOUS
+from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
+from plant_sim.physics.model import AxisPlant
 from regulator.frequency_response import Multisine
 from regulator.tuning import TuningError
+from virtual_bus.formats.axis import dump_axis, load_axis
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 PAPER = load_axis(CONFIG / "paper_axis.toml")
