@@ -13,6 +13,7 @@ import pytest
 
 from bridge.__main__ import main
 from plant_sim.drive import DriveConfig, SimulatedDrive, State402
+from tests.command_line import refused_in_one_line
 from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.formats.trace import read_trace
@@ -101,14 +102,7 @@ RUN = ["run", "--interface", "virtual", "--channel", "nobody-here", "--axis", AX
 def test_bad_arguments_exit_2_with_one_line(
     argv: list[str], fragment: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    try:
-        code = main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    assert code == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err
-    assert fragment in err
+    assert fragment in refused_in_one_line(main, argv, capsys)
 
 
 def test_busload_of_one_axis(capsys: pytest.CaptureFixture[str]) -> None:

@@ -13,6 +13,8 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
+from tests.command_line import exit_status
+
 
 class Verdict(Enum):
     """What the format's documentation says of a mutated file."""
@@ -164,10 +166,7 @@ def run_cli(
     err = io.StringIO()
     try:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            try:
-                code = main(list(argv))
-            except SystemExit as exc:
-                code = exc.code
+            code = exit_status(main, argv)
     except Exception as exc:  # a builtin error: what these tests look for
         findings.tracebacks.append(f"{label}: {' '.join(argv[:1])}: {type(exc).__name__}: {exc}")
         return None
