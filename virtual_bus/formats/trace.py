@@ -19,6 +19,7 @@ from typing import BinaryIO
 
 import numpy as np
 
+from ..closing import Closing
 from .errors import TraceFileError, TraceWarning, read_text
 
 REQUIRED_COLUMNS = ("time", "motor_position", "motor_torque")
@@ -105,7 +106,7 @@ class Trace:
             writer.write_rows(np.column_stack([self.columns[c] for c in self.names]))
 
 
-class TraceWriter:
+class TraceWriter(Closing):
     """Row-wise CSV writer: rows are collected and every ``flush_every`` rows (and on close)
     written as one block in a single unbuffered write, so the file only ever holds whole rows
     and a recorder killed mid-run leaves a trace that reads back up to its last block."""
@@ -142,12 +143,6 @@ class TraceWriter:
         if not self._file.closed:
             self.flush()
             self._file.close()
-
-    def __enter__(self) -> TraceWriter:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def _plausibility(trace: Trace, path: Path) -> None:
