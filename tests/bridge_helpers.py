@@ -32,6 +32,9 @@ from regulator import RegulatorConfig
 from virtual_bus.formats.axis import AxisConfig, load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
+#: The paper's axis with the guideway friction that shows section X's limit cycle
+#: (plant_sim.paper.outputs.LIMIT_CYCLE_VISCOUS).
+LIMIT_CYCLE_AXIS = AXIS.with_values({"friction.viscous": 5.0})
 
 RATED_TORQUE_NM = 100.0
 OPERATION_ENABLED = 0x0027
