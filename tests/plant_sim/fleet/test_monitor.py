@@ -382,26 +382,9 @@ def test_cli_bad_arguments_and_unreachable_scheduler(tmp_path):
     res = _cli(str(tmp_path), "--axes", str(bad_map), "--out", str(tmp_path / "o"))
     assert res.returncode == 2 and "'machine' must be a non-empty string" in res.stderr
     (tmp_path / "only.csv").write_text("not,a\ntrace,file\n")
-    res = _cli(
-        str(tmp_path / "only.csv"),
-        "--axis",
-        str(PAPER_AXIS),
-        "--out",
-        str(tmp_path / "o"),
-        "--workers",
-        "0",
-        "--no-figures",
-    )
+    only = [str(tmp_path / "only.csv"), "--axis", str(PAPER_AXIS), "--out", str(tmp_path / "o")]
+    res = _cli(*only, "--workers", "0", "--no-figures")
     assert res.returncode == 1 and "0 recordings analysed, 1 skipped" in res.stdout
-    res = _cli(
-        str(tmp_path / "only.csv"),
-        "--axis",
-        str(PAPER_AXIS),
-        "--out",
-        str(tmp_path / "o"),
-        "--scheduler",
-        "tcp://127.0.0.1:9",
-        "--no-figures",
-    )
+    res = _cli(*only, "--scheduler", "tcp://127.0.0.1:9", "--no-figures")
     assert res.returncode == 1 and "cannot connect" in res.stderr
     assert res.stderr.strip().count("\n") <= 1
