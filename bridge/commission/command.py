@@ -198,8 +198,24 @@ def _get(args: argparse.Namespace) -> int:
                 raise CommissionInputError(
                     f"{key_text(var)} {var.name} is write-only ({var.access_type}) per the EDS"
                 )
+        refused = 0
         for var in chosen:
-            print(display(var, access.read(var)))
+            try:
+                print(display(var, access.read(var)))
+            except NodeAccessError as exc:
+                # a silent node ends the command (exit 1); a refused sub-index is shown with
+                # its abort code and the others are still read (a record reads whole)
+                if exc.abort_code is None or len(chosen) == 1:
+                    raise
+                refused += 1
+                print(f"{key_text(var)} {var.name}: not read, {abort_text(exc.abort_code)}")
+        if refused:
+            print(
+                f"python -m bridge config get: node {args.node_id}: {refused} of {len(chosen)} "
+                "objects refused (above)",
+                file=sys.stderr,
+            )
+            return 1
     return 0
 
 
