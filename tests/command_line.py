@@ -1,8 +1,11 @@
-"""A package's command line run in process, as the CLI tests run it: ``main(argv)`` of its
-``__main__`` with argparse's own exits counted as exit statuses."""
+"""A package's command line as the tests run it: in process (``main(argv)`` of its
+``__main__``, argparse's own exits counted as exit statuses), or as a process whose output
+is read line by line within a bound (:func:`next_line`)."""
 
 from __future__ import annotations
 
+import selectors
+import subprocess
 from collections.abc import Callable, Sequence
 
 import pytest
@@ -27,3 +30,13 @@ def refused_in_one_line(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err, err
     return err
+
+
+def next_line(proc: subprocess.Popen[str], timeout_s: float) -> str:
+    """The next stdout line of ``proc`` within ``timeout_s`` ("" if none)."""
+    assert proc.stdout is not None
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        if not sel.select(timeout_s):
+            return ""
+    return proc.stdout.readline()
