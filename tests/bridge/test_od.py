@@ -24,9 +24,7 @@ from bridge.eds import render_eds
 from bridge.errors import SdoAbort
 from bridge.layout import TPDO1_STRUCT, TPDO2_STRUCT
 from bridge.node import Bridge
-from bridge.params import BridgeParams
-from bridge.timing import LockstepPacer
-from tests.bridge_helpers import abort_code, sdo_tool  # tests/ helper module
+from tests.bridge_helpers import abort_code, idle_bridge, sdo_tool  # tests/ helper module
 from virtual_bus.formats.axis import load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
@@ -53,12 +51,8 @@ def all_variables(od: canopen.ObjectDictionary) -> list[ODVariable]:
 
 @pytest.fixture
 def bridge(bus_pair: tuple[can.BusABC, can.BusABC]) -> Iterator[Bridge]:
-    b = Bridge(bus_pair[0], BridgeParams.for_axis(AXIS), AXIS.kind, LockstepPacer(0.001))
-    b.start(configure_drive=False)  # no drive on this bus: ENABLING
-    b.controller.command(Command.DISABLE)
-    with b.serving():
+    with idle_bridge(bus_pair[0]) as b:  # no drive on this bus
         yield b
-    b.close()
 
 
 @pytest.fixture

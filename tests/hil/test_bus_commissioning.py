@@ -11,7 +11,6 @@ import json
 import math
 import signal
 import struct
-import subprocess
 import sys
 import uuid
 from pathlib import Path
@@ -33,6 +32,7 @@ from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
 from regulator import RegulatorConfig
 from regulator.frequency_response import Multisine
 from regulator.tuning import Outcome, TuningError
+from tests.command_line import next_line
 from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.formats.axis import AxisConfig, dump_axis, load_axis
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
@@ -162,17 +162,6 @@ def test_a_tuning_run_without_limit_cycle_stores_nothing(tmp_path: Path) -> None
 
 
 # --- two processes -----------------------------------------------------------------------------
-def _readline(proc: subprocess.Popen[str], timeout_s: float) -> str:
-    import selectors
-
-    assert proc.stdout is not None
-    with selectors.DefaultSelector() as sel:
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        if not sel.select(timeout_s):
-            return ""
-    return proc.stdout.readline()
-
-
 @pytest.mark.slow
 def test_bridge_tune_against_the_drive_as_its_own_process(
     private_netns: NetworkNamespace, tmp_path: Path, subprocess_env: dict[str, str]
@@ -188,7 +177,7 @@ def test_bridge_tune_against_the_drive_as_its_own_process(
         [*command, "--axis", str(axis_file), "--clock", "lockstep"], env=subprocess_env
     )
     try:
-        line = _readline(drive, BOOT_TIMEOUT_S)
+        line = next_line(drive, BOOT_TIMEOUT_S)
         assert line.startswith("drive 2: boot-up sent on udp_multicast group"), line
         argv = ["tune", "--interface", "udp_multicast", "--channel", UDP_GROUP]
         argv += ["--axis", str(axis_file), "--store", str(store), "--out", str(out)]
