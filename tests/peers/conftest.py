@@ -14,20 +14,16 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from bridge.cycle import Command
-from bridge.node import Bridge, BridgeConfig
-from bridge.params import BridgeParams
-from bridge.timing import LockstepPacer
+from bridge.node import Bridge
+from tests.bridge_helpers import idle_bridge
 from tests.peers import canopennode as cn
-from tests.peers.peers_common import AXIS_FILE, BRIDGE_ID, DRIVE_ID
+from tests.peers.peers_common import AXIS_FILE, DRIVE_ID
 from virtual_bus import BusConfig, Interface, open_bus
-from virtual_bus.formats.axis import load_axis
 
 
 @pytest.fixture(scope="session")
@@ -64,24 +60,10 @@ def drive_process(subprocess_env: dict[str, str], tmp_path: Path) -> Iterator[su
 
 @pytest.fixture
 def bridge_on_vcan(tmp_path: Path) -> Iterator[Bridge]:
-    axis = load_axis(AXIS_FILE)
+    """The paper axis's bridge (node 1), disabled, serving SDO on vcan0."""
     bus = open_bus(BusConfig(interface=Interface.SOCKETCAN, channel="vcan0"))
-    bridge = Bridge(
-        bus,
-        BridgeParams.for_axis(axis),
-        axis.kind,
-        LockstepPacer(axis.control.position_cycle),
-        config=BridgeConfig(node_id=BRIDGE_ID, store_path=tmp_path / "bridge-store.json"),
-    )
     try:
-        bridge.start(configure_drive=False)
-        bridge.controller.command(Command.DISABLE)
-        with bridge.serving():
+        with idle_bridge(bus, tmp_path / "bridge-store.json") as bridge:
             yield bridge
     finally:
-        bridge.close()
         bus.shutdown()
-
-
-def service_threads() -> list[threading.Thread]:
-    return [t for t in threading.enumerate() if t.name == "bridge-service"]

@@ -9,7 +9,6 @@ is in ``test_canopennode_master.py``.
 from __future__ import annotations
 
 import re
-import tempfile
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,11 +20,8 @@ from canopen.sdo import SdoAbortedError, SdoClient
 
 import tests.sdo_oracle  # noqa: F401  (tests/ helper: works around a canopen client bug)
 from bridge import od as objdict
-from bridge.cycle import Command
-from bridge.node import Bridge, BridgeConfig
-from bridge.params import BridgeParams
-from bridge.timing import LockstepPacer
 from plant_sim.drive.rig import virtual_rig
+from tests.bridge_helpers import idle_bridge, sdo_tool
 from tests.peers import eds_predict as ep
 from tests.peers.peers_common import AXIS_FILE, BRIDGE_EDS, BRIDGE_ID, DRIVE_EDS, DRIVE_ID
 from virtual_bus.formats.axis import load_axis
@@ -50,33 +46,17 @@ def _client(sdo: SdoClient) -> tuple:
 
 
 @pytest.fixture
-def bridge_client() -> Iterator[tuple]:
+def bridge_client(tmp_path: Path) -> Iterator[tuple]:
     channel = f"pred-{uuid.uuid4().hex[:10]}"
     bridge_bus = can.Bus(interface="virtual", channel=channel)
     tool_bus = can.Bus(interface="virtual", channel=channel)
-    network = canopen.Network(tool_bus)
-    network.notifier = can.Notifier(tool_bus, network.listeners, 0.02)
-    with tempfile.TemporaryDirectory() as tmp:
-        b = Bridge(
-            bridge_bus,
-            BridgeParams.for_axis(AXIS),
-            AXIS.kind,
-            LockstepPacer(AXIS.control.position_cycle),
-            config=BridgeConfig(store_path=Path(tmp) / "store.json"),
-        )
-        try:
-            b.start(configure_drive=False)
-            b.controller.command(Command.DISABLE)
-            tool = canopen.RemoteNode(BRIDGE_ID, objdict.load_od())
-            network.add_node(tool)
+    try:
+        with idle_bridge(bridge_bus, tmp_path / "store.json"), sdo_tool(tool_bus) as tool:
             tool.sdo.RESPONSE_TIMEOUT = TIMEOUT_S
-            with b.serving():
-                yield _client(tool.sdo)
-        finally:
-            network.notifier.stop(2.0)
-            b.close()
-            bridge_bus.shutdown()
-            tool_bus.shutdown()
+            yield _client(tool.sdo)
+    finally:
+        bridge_bus.shutdown()
+        tool_bus.shutdown()
 
 
 @pytest.fixture
