@@ -422,7 +422,17 @@ def _required_objects(
     facts: DriveFacts, profile: DriveProfile, drive_id: int
 ) -> list[DriveSetupError]:
     found = []
-    for key in ((0x6040, 0), (0x6041, 0), (0x6064, 0), (0x60FF, 0), (0x6060, 0)):
+    core = ((0x6040, 0), (0x6041, 0), (0x6064, 0), (0x60FF, 0), (0x6060, 0))
+    if not any(facts.has(key) for key in core):  # not a drive at all: nothing else matters
+        shown = "not readable" if facts.device_type is None else f"0x{facts.device_type:08X}"
+        raise _fail(
+            f"drive {drive_id}: {format_key(core[0])} missing: not a CiA 402 drive (1000h "
+            f"device type {shown}; "
+            + ", ".join(format_key(key) for key in core[1:])
+            + " missing too)",
+            core[0],
+        )
+    for key in core:
         if not facts.has(key):
             found.append(
                 _fail(f"drive {drive_id}: {format_key(key)} missing: not a CiA 402 drive", key)

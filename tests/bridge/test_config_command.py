@@ -117,7 +117,11 @@ def writable_snapshot(node: canopen.RemoteNode) -> dict[tuple[int, int], bytes]:
 
 def with_value(dcf: str, section: str, value: str) -> str:
     """``dcf`` with the ParameterValue of ``[section]`` replaced."""
-    pattern = re.compile(rf"(\[{section}\][^\[]*?ParameterValue=)[^\n]*", re.IGNORECASE)
+    # the section's lines up to its ParameterValue (a Description may hold "[requires ...]")
+    pattern = re.compile(
+        rf"(^\[{section}\]\n(?:(?!\[)[^\n]*\n)*?ParameterValue=)[^\n]*",
+        re.IGNORECASE | re.MULTILINE,
+    )
     new, count = pattern.subn(lambda m: m[1] + value, dcf)
     assert count == 1, section
     return new

@@ -182,7 +182,8 @@ REFUSED = [
     ("n breaks the sampling rule", objdict.WINDOW_N, 0, bytes([20]), SdoAbort.TOO_HIGH),
     ("T_v below eq. 14", objdict.TV, 0, F.pack(0.5), SdoAbort.TOO_LOW),
     ("T_f negative", objdict.TF, 0, F.pack(-1.0), SdoAbort.TOO_LOW),
-    ("beta_T inf", objdict.BETA_T, 0, F.pack(math.inf), SdoAbort.VALUE_RANGE),
+    # +inf is above the EDS HighLimit (1e4), as a tool reading the EDS predicts
+    ("beta_T inf", objdict.BETA_T, 0, F.pack(math.inf), SdoAbort.TOO_HIGH),
     ("enable = 2", objdict.REG_ENABLE, 0, b"\x02", SdoAbort.VALUE_RANGE),
     ("cycle 50 us", objdict.CYCLE_PERIOD, 0, struct.pack("<I", 50), SdoAbort.TOO_LOW),
     ("cycle 5 ms", objdict.CYCLE_PERIOD, 0, struct.pack("<I", 5000), SdoAbort.TOO_HIGH),
@@ -191,7 +192,7 @@ REFUSED = [
         objdict.HEARTBEAT_CONSUMER,
         1,
         struct.pack("<I", (5 << 16) | 100),
-        SdoAbort.VALUE_RANGE,
+        SdoAbort.TOO_HIGH,  # above the EDS HighLimit 0x0002FFFF (drive node-ID 2)
     ),
     ("speed limit 0", objdict.SPEED_LIMIT, 0, F.pack(0.0), SdoAbort.TOO_LOW),
     (
