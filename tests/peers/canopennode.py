@@ -32,7 +32,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from tests.paths import ROOT as REPO
+from virtual_bus.shipped import SHARED_DIR
 
 #: Upper bound of any wait for canopend's output (a stuck program, not a slow machine).
 BOUND_S = 120.0
@@ -46,13 +46,10 @@ class PeerUnavailable(Exception):
 
 
 def peers_dir() -> Path | None:
-    """``shared/peers``: $BACKLASH_PEERS, else beside the checkout or two levels up (a git
-    worktree under ``wt/NAME``)."""
-    env = os.environ.get("BACKLASH_PEERS")
-    candidates = [Path(env)] if env else [REPO.parent / "shared" / "peers"]
-    if not env:
-        candidates.append(REPO.parent.parent / "shared" / "peers")
-    return next((p for p in candidates if (p / "canopenlinux" / "Makefile").is_file()), None)
+    """``shared/peers``: $BACKLASH_PEERS, else the third-party folder beside the checkout
+    (:data:`virtual_bus.shipped.SHARED_DIR`, which ``$BACKLASH_SHARED`` moves)."""
+    folder = Path(os.environ.get("BACKLASH_PEERS") or SHARED_DIR / "peers")
+    return folder if (folder / "canopenlinux" / "Makefile").is_file() else None
 
 
 def cache_dir() -> Path:
