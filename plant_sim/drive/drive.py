@@ -74,6 +74,11 @@ logger = logging.getLogger(__name__)
 __all__ = ["DriveConfig", "SimulatedDrive", "TimeMode", "warm_up"]
 
 
+#: At most this many frames received before the boot-up are dropped by :meth:`start`
+#: (bounded: traffic that goes on cannot hold the boot).
+STALE_FRAMES_MAX = 100_000
+
+
 def warm_up(axis: AxisConfig) -> None:
     """Load (or compile, on an empty numba cache) every compiled function the drive calls:
     both physics kernels it steps, ``advance`` (Operation enabled, ramps) and
@@ -256,6 +261,12 @@ class SimulatedDrive:
         if self._own_network:
             bus = self._network.bus
             assert bus is not None
+            # What came while it booted was sent to no node: a drive joins the bus with its
+            # boot-up message. Answered late, a master's earlier requests (1000h asked while
+            # the physics compiled) reached it as answers to its later ones.
+            for _ in range(STALE_FRAMES_MAX):
+                if bus.recv(0.0) is None:
+                    break
             self._network.notifier = can.Notifier(
                 bus, self._network.listeners, self.config.notifier_timeout_s
             )

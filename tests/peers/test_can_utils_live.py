@@ -137,7 +137,9 @@ def test_candump_records_the_frames_of_the_bridges_bus_log_in_its_order(
 
 # --- cangen flood ---------------------------------------------------------------------------------
 def _drive_counts(kinds: range) -> dict[int, int]:
-    """2105h:01..07 of drive 2, read by python canopen's SDO client."""
+    """2105h:01..07 of drive 2, read by python canopen's SDO client; under key 0 the set of
+    COB-IDs whose remote frames the drive answers (CiA 301: a TPDO whose COB-ID in
+    1800h-1803h:01 has bit 31 (invalid) and bit 30 (no RTR allowed) clear)."""
     bus = can.Bus(interface="socketcan", channel="vcan0")
     network = canopen.Network(bus)
     network.NOTIFIER_CYCLE = 0.05
@@ -145,7 +147,10 @@ def _drive_counts(kinds: range) -> dict[int, int]:
     try:
         node = network.add_node(2, str(ROOT / "config" / "drive.eds"))
         node.sdo.RESPONSE_TIMEOUT = 5.0
-        return {k: int.from_bytes(node.sdo.upload(0x2105, k), "little") for k in kinds}
+        counts = {k: int.from_bytes(node.sdo.upload(0x2105, k), "little") for k in kinds}
+        cobs = [int.from_bytes(node.sdo.upload(0x1800 + n, 1), "little") for n in range(4)]
+        rtr = {cob & 0x7FF for cob in cobs if not cob & (0b11 << 30)}
+        return {**counts, 0: rtr}  # type: ignore[dict-item]
     finally:
         network.disconnect()
 
@@ -219,7 +224,11 @@ def test_a_cangen_flood_during_the_loop_is_counted_by_both_nodes(tmp_path: Path)
     assert find_window(record, [f for f, _ in _log_with_flags(tmp_path / "bus.log")]) is not None
     # the drive: 2105h grew by what cangen sent (all of it arrived while it ran)
     delta = {k: drive_after[k] - drive_before[k] for k in KINDS}
-    assert delta[5] == sum(f.remote and not f.extended for f in sent)
+    answers_rtr = drive_after[0]  # remote frames at those COB-IDs are served, not refused
+    assert answers_rtr == drive_before[0] and answers_rtr <= {0x182, 0x282, 0x382, 0x482}
+    assert delta[5] == sum(
+        f.remote and not f.extended and f.cob_id not in answers_rtr for f in sent
+    )
     assert delta[6] == sum(f.extended for f in sent)
     certain = sum(
         not f.extended and not f.remote and f.cob_id not in DRIVE_MAY_CONSUME for f in sent

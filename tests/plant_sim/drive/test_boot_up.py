@@ -54,3 +54,36 @@ def test_an_sdo_request_answering_the_boot_up_is_admitted() -> None:
             drive.stop()
     finally:
         bus.shutdown()
+
+
+def _upload_request(index: int, subindex: int) -> can.Message:
+    """CiA 301 SDO initiate upload request (command specifier 0x40) to node 2."""
+    data = bytes([0x40, index & 0xFF, index >> 8, subindex, 0, 0, 0, 0])
+    return can.Message(arbitration_id=0x602, data=data, is_extended_id=False)
+
+
+def test_requests_sent_before_the_boot_up_are_not_answered_after_it() -> None:
+    """A master asking 1000h while the drive still boots (compiles) gets no late answers:
+    the first SDO answer after the boot-up is the one to the request sent after it."""
+    channel = f"boot-{uuid.uuid4().hex[:10]}"
+    drive_bus, master = InProcessBus(channel), InProcessBus(channel)
+    try:
+        drive = SimulatedDrive(drive_bus, 2, AXIS)
+        for _ in range(3):  # a master's tries while nobody answers
+            master.send(_upload_request(0x1000, 0))
+        drive.start()
+        try:
+            boot = master.recv(10.0)
+            assert boot is not None and (boot.arbitration_id, bytes(boot.data)) == (0x702, b"\0")
+            master.send(_upload_request(0x1018, 1))
+            answer = master.recv(10.0)
+            while answer is not None and answer.arbitration_id != 0x582:
+                answer = master.recv(10.0)
+            assert answer is not None
+            assert bytes(answer.data[1:4]) == bytes([0x18, 0x10, 0x01])  # 1018h:01, not 1000h
+            assert drive.guard.refused == 0  # they were not the drive's to refuse either
+        finally:
+            drive.stop()
+    finally:
+        drive_bus.shutdown()
+        master.shutdown()
