@@ -219,7 +219,9 @@ def test_a_cangen_flood_during_the_loop_is_counted_by_both_nodes(tmp_path: Path)
     unknown = [
         f for f in got if not f.extended and not f.remote and f.cob_id not in BRIDGE_CONSUMES
     ]
-    assert refused["unknown_cob_id"] == len(unknown) > 100
+    # > 0: a random frame may stop the axis early (a SYNC, an EMCY of the drive's COB-ID):
+    # `bridge run` ends then, and saw the flood up to there
+    assert refused["unknown_cob_id"] == len(unknown) > 0
     # and it got every frame the bus carried while it ran (flood or stop, nothing lost)
     assert find_window(record, [f for f, _ in _log_with_flags(tmp_path / "bus.log")]) is not None
     # the drive: 2105h grew by what cangen sent (all of it arrived while it ran)
