@@ -264,9 +264,10 @@ class SimulatedDrive:
             # What came while it booted was sent to no node: a drive joins the bus with its
             # boot-up message. Answered late, a master's earlier requests (1000h asked while
             # the physics compiled) reached it as answers to its later ones.
-            for _ in range(STALE_FRAMES_MAX):
-                if bus.recv(0.0) is None:
-                    break
+            with contextlib.suppress(can.CanError, OSError):  # a bad one ends it: no matter
+                for _ in range(STALE_FRAMES_MAX):
+                    if bus.recv(0.0) is None:
+                        break
             self._network.notifier = can.Notifier(
                 bus, self._network.listeners, self.config.notifier_timeout_s
             )

@@ -8,7 +8,7 @@ import signal
 import sys
 import threading
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import can
@@ -106,8 +106,11 @@ def served_drive(bus_mode: Interface) -> Iterator[tuple[can.BusABC, threading.Ev
     assert results and not isinstance(results[0], BaseException), results
 
 
-def _wait_for(bus: can.BusABC, can_id: int, timeout_s: float) -> can.Message:
-    """The first frame with ``can_id`` (bounded wait, no sleep)."""
+def _wait_for(
+    bus: can.BusABC, can_id: int, timeout_s: float, alive: Callable[[], bool] = lambda: True
+) -> can.Message:
+    """The first frame with ``can_id``, while ``alive()`` (the sender still runs: a drive
+    that died ends the wait at once); ``timeout_s`` is the backstop. No sleep."""
     deadline = threading.Event()
     timer = threading.Timer(timeout_s, deadline.set)
     timer.start()
@@ -116,6 +119,8 @@ def _wait_for(bus: can.BusABC, can_id: int, timeout_s: float) -> can.Message:
             msg = bus.recv(0.5)
             if msg is not None and msg.arbitration_id == can_id:
                 return msg
+            if not alive():
+                raise AssertionError(f"the drive ended before frame 0x{can_id:03X}")
     finally:
         timer.cancel()
     raise TimeoutError(f"no frame 0x{can_id:03X} within {timeout_s} s")
@@ -156,7 +161,7 @@ def test_serve_answers_python_canopen_and_returns_on_stop(
     served_drive: tuple[can.BusABC, threading.Event],
 ) -> None:
     master, done = served_drive
-    boot = _wait_for(master, 0x702, BOOT_TIMEOUT_S)
+    boot = _wait_for(master, 0x702, BOOT_TIMEOUT_S, lambda: not done.is_set())
     assert bytes(boot.data) == b"\x00"
     got = _read_with_canopen(master)
     assert got["device_type"] == 0x00020192
@@ -381,13 +386,20 @@ def test_the_poll_lead_is_checked_against_the_cycle() -> None:
 
 
 class _FlakyBus(VirtualBus):
-    """python-can's virtual bus whose first receive in the thread named "serve" fails as a
-    datagram that is no frame does on udp_multicast (can.CanOperationError)."""
+    """python-can's virtual bus whose first receive in the thread named "serve" after the
+    boot-up fails as a datagram that is no frame does on udp_multicast
+    (can.CanOperationError)."""
 
     failed = 0
+    booted = False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.booted = self.booted or msg.arbitration_id == 0x702
+        super().send(msg, timeout)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        if self.failed == 0 and threading.current_thread().name == "serve":
+        serving = threading.current_thread().name == "serve"
+        if self.booted and self.failed == 0 and serving:
             self.failed = 1
             raise can.CanOperationError("could not unpack received message")
         return super()._recv_internal(timeout)
@@ -414,7 +426,7 @@ def test_served_with_busy_poll_answers_canopen_and_counts_a_bad_datagram() -> No
     thread = threading.Thread(target=body, name="serve")
     thread.start()
     try:
-        _wait_for(master, 0x702, BOOT_TIMEOUT_S)
+        _wait_for(master, 0x702, BOOT_TIMEOUT_S, thread.is_alive)
         got = _read_with_canopen(master)
     finally:
         stop.set()
