@@ -20,6 +20,14 @@ shorter, for a loop that sends and receives a few frames every millisecond:
 * receive: into one buffer allocated when the bus is opened (``recvmsg_into``); without a
   timeout a non-blocking read with no ``select`` first (a poll is one system call); the
   own-frame check looks at the raw datagram, so an own frame is never unpacked.
+
+For a loop without a Python object per frame (:class:`virtual_bus.framing.UdpPort`) the bus
+also reads a classic standard data frame in place (:func:`parse_plain`: the
+fields at the positions python-can's ``pack_message`` puts them; anything else is left to
+msgpack and python-can's checks) and gives templates of the frames such a loop sends
+(:meth:`LoopbackUdpBus.template`: the datagram ``send`` would make, with the payload's
+offset). ``tests/test_wire_codecs.py`` checks both against python-can's ``pack_message`` and
+``unpack_message``.
 """
 
 from __future__ import annotations
@@ -43,6 +51,65 @@ MAX_DATAGRAM = 4096
 _TIMESPEC = struct.Struct("@ll")
 _SO_TIMESTAMPNS = 35
 _ANCILLARY_SIZE = socket.CMSG_SPACE(_TIMESPEC.size)
+
+# python-can's pack_message: a map of 11 fields in this order (msgpack, use_bin_type); what a
+# classic standard data frame looks like around its identifier, channel, dlc and data
+_HEAD = b"\x8b\xa9timestamp\xcb"  # fixmap 11, "timestamp": float 64
+_ID_KEY = b"\xaearbitration_id"
+_ID_AT = len(_HEAD) + 8  # after the timestamp's 8 bytes
+_VALUE_AT = _ID_AT + len(_ID_KEY)
+_PLAIN_FLAGS = (
+    b"\xaeis_extended_id\xc2\xafis_remote_frame\xc2\xaeis_error_frame\xc2\xa7channel"
+)
+_CHANNEL_KEY_SIZE = 8  # "\xa7channel"
+_DLC_KEY = b"\xa3dlc"
+_DATA_KEY = b"\xa4data\xc4"  # bin 8
+_PLAIN_TAIL = b"\xa5is_fd\xc2\xaebitrate_switch\xc2\xb5error_state_indicator\xc2"
+
+
+def parse_plain(buffer: bytearray, size: int) -> tuple[int, int, int, int] | None:
+    """A classic standard data frame in python-can's wire format, read where
+    ``pack_message`` puts its fields: (COB-ID, length, payload offset, channel offset), or
+    None for anything else (other frame kinds, other encodings, garbage: msgpack decides)."""
+    if not buffer.startswith(_HEAD) or not buffer.startswith(_ID_KEY, _ID_AT):
+        return None
+    pos = _VALUE_AT
+    kind = buffer[pos]
+    if kind < 0x80:  # positive fixint
+        cob_id = kind
+        pos += 1
+    elif kind == 0xCC:  # uint 8
+        cob_id = buffer[pos + 1]
+        pos += 2
+    elif kind == 0xCD:  # uint 16, big endian
+        cob_id = buffer[pos + 1] << 8 | buffer[pos + 2]
+        pos += 3
+    else:
+        return None
+    if cob_id > 0x7FF or not buffer.startswith(_PLAIN_FLAGS, pos):
+        return None
+    pos += len(_PLAIN_FLAGS)
+    channel_at = pos - _CHANNEL_KEY_SIZE
+    kind = buffer[pos]
+    if 0xA0 <= kind <= 0xBF:  # fixstr
+        pos += 1 + kind - 0xA0
+    elif kind == 0xD9:  # str 8
+        pos += 2 + buffer[pos + 1]
+    elif kind == 0xC0:  # nil
+        pos += 1
+    else:
+        return None
+    if not buffer.startswith(_DLC_KEY, pos):
+        return None
+    dlc = buffer[pos + 4]
+    pos += 5
+    if dlc > 8 or not buffer.startswith(_DATA_KEY, pos) or buffer[pos + 6] != dlc:
+        return None
+    offset = pos + 7
+    pos = offset + dlc
+    if pos + len(_PLAIN_TAIL) != size or not buffer.startswith(_PLAIN_TAIL, pos):
+        return None
+    return cob_id, dlc, offset, channel_at
 
 
 class LoopbackUdpBus(UdpMulticastBus):
@@ -78,10 +145,64 @@ class LoopbackUdpBus(UdpMulticastBus):
         self._buffers = [self._buffer]
         self.channel_info = f"udp_multicast group {channel}"
 
+    # --- what a loop without a message per frame needs (virtual_bus.framing.UdpPort) --------
+    @property
+    def udp_socket(self) -> socket.socket:
+        """The bus's socket (one thread receives at a time, see the class docstring)."""
+        return self._socket
+
+    @property
+    def destination(self) -> tuple[str, int]:
+        """Where a frame is sent (the group and port)."""
+        return self._destination
+
+    def is_own(self, buffer: bytearray, size: int) -> bool:
+        """Whether a datagram is one of this bus's own frames (looped back by the kernel)."""
+        return buffer.find(self._own_marker, 0, size) >= 0
+
+    def decode_datagram(self, datagram: memoryview, timestamp: float) -> can.Message | None:
+        """A received datagram as python-can decodes it (python-can's unpack_message, check
+        True), with ``timestamp``; None for an FD frame on a classic bus (as python-can).
+        Raises ``can.CanOperationError`` for a datagram that is no frame."""
+        try:
+            fields = msgpack.unpackb(datagram, raw=False)
+            fields["timestamp"] = timestamp
+            fields["channel"] = self.group
+            msg = can.Message(check=True, **fields)
+        except Exception as exc:
+            raise can.CanOperationError("could not unpack received message") from exc
+        if msg.is_fd and not self._fd:
+            return None
+        return msg
+
+    def template(self, cob_id: int, length: int) -> tuple[bytearray, int]:
+        """The datagram :meth:`send` makes of a classic standard data frame ``cob_id`` with
+        ``length`` zero bytes (timestamp 0.0), and the offset of its payload in it: rewrite
+        the payload in place and send the datagram again and again."""
+        if not (0 <= cob_id <= 0x7FF and 0 <= length <= 8):
+            raise BusConfigError(f"frame 0x{cob_id:X} with {length} bytes: not a classic one")
+        msg = can.Message(arbitration_id=cob_id, data=bytes(length), is_extended_id=False)
+        wire = bytearray(self._pack(msg))
+        found = parse_plain(wire, len(wire))
+        assert found is not None and found[:2] == (cob_id, length)
+        return wire, found[2]
+
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if msg.is_fd and not self._fd:
             raise can.CanOperationError("cannot send FD message over bus with CAN FD disabled")
-        packed = msgpack.packb(
+        packed = self._pack(msg)
+        if timeout is None:
+            try:
+                sent = self._socket.sendto(packed, self._destination)
+            except OSError as error:
+                raise can.CanOperationError("failed to send via socket") from error
+            if sent < len(packed):
+                raise can.CanTimeoutError()
+        else:
+            self._multicast.send(packed, timeout)
+
+    def _pack(self, msg: can.Message) -> bytes:
+        return msgpack.packb(  # type: ignore[no-any-return]
             {  # python-can's pack_message, field for field, with our token as channel
                 "timestamp": msg.timestamp,
                 "arbitration_id": msg.arbitration_id,
@@ -97,15 +218,6 @@ class LoopbackUdpBus(UdpMulticastBus):
             },
             use_bin_type=True,
         )
-        if timeout is None:
-            try:
-                sent = self._socket.sendto(packed, self._destination)
-            except OSError as error:
-                raise can.CanOperationError("failed to send via socket") from error
-            if sent < len(packed):
-                raise can.CanTimeoutError()
-        else:
-            self._multicast.send(packed, timeout)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         sock = self._socket
@@ -124,26 +236,11 @@ class LoopbackUdpBus(UdpMulticastBus):
                 size, ancillary, _, _ = sock.recvmsg_into(self._buffers, _ANCILLARY_SIZE)
         except OSError as exc:
             raise can.CanOperationError(f"Failed to receive from IP/UDP socket: {exc}") from exc
-        if self._buffer.find(self._own_marker, 0, size) >= 0:
+        if self.is_own(self._buffer, size):
             return None, False  # our own frame, looped back by the kernel
-        return self._decode(self._view[:size], ancillary), False
-
-    def _decode(
-        self, datagram: memoryview, ancillary: list[tuple[int, int, bytes]]
-    ) -> can.Message | None:
-        """One received frame (python-can's unpack_message, check=True), or None for an FD
-        frame on a classic bus (as python-can)."""
-        try:
-            fields = msgpack.unpackb(datagram, raw=False)
-            if self._timestamps:
-                seconds, nanoseconds = _TIMESPEC.unpack_from(ancillary[0][2])
-                fields["timestamp"] = seconds + nanoseconds * 1e-9
-            else:
-                fields["timestamp"] = time.time()
-            fields["channel"] = self.group
-            msg = can.Message(check=True, **fields)
-        except Exception as exc:
-            raise can.CanOperationError("could not unpack received message") from exc
-        if msg.is_fd and not self._fd:
-            return None
-        return msg
+        if self._timestamps and ancillary:
+            seconds, nanoseconds = _TIMESPEC.unpack_from(ancillary[0][2])
+            timestamp = seconds + nanoseconds * 1e-9
+        else:
+            timestamp = time.time()
+        return self.decode_datagram(self._view[:size], timestamp), False
