@@ -20,6 +20,7 @@ import can
 import pytest
 
 from bridge.cycle import BridgeState, StopReason
+from bridge.cyclecore import Functions
 from bridge.layout import RPDO1_STRUCT, SYNC_COB_ID, TPDO1_STRUCT, TPDO2_STRUCT
 from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
@@ -209,15 +210,13 @@ def test_a_failing_controller_step_stops_the_axis() -> None:
     bus = ScriptedBus(clock)
     bridge = make_bridge(clock, bus)
     bridge.run(cycles=3)
-    original = bridge.controller.regulator.step
+    c = bridge.controller
 
-    def failing(*args: float) -> float:
+    def failing(*args: object) -> tuple[int, int]:
         raise ZeroDivisionError("bug")
 
-    bridge.controller.regulator.step = failing  # type: ignore[method-assign]
+    c.core = Functions(c.core.measure, failing, failing, compiled=False)
     bridge.run(cycles=2)
-    bridge.controller.regulator.step = original  # type: ignore[method-assign]
-    c = bridge.controller
     assert c.stop_reason is StopReason.INTERNAL_ERROR and "bug" in c.stop_message
     assert bus.rpdos[-1] == (0x0002, 0)
 
