@@ -264,6 +264,12 @@ class AxisPlant:
     def motor_torque_nm(self) -> float:
         return float(self._st[K.S_TAU])
 
+    def read_measured(self, out: np.ndarray) -> None:
+        """:attr:`motor_position_rad`, :attr:`load_position`, :attr:`motor_speed_rad_s` and
+        :attr:`motor_torque_nm` into ``out`` (float64, 4 elements) in one compiled call (a
+        drive reads them after every step)."""
+        K.read_measured(self._p, self._st, out)
+
     @property
     def position_cycle_s(self) -> float:
         return self.axis.control.position_cycle

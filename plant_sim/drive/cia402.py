@@ -223,6 +223,15 @@ class StateMachine:
             return ()
         return self.command(command, quick_stop_stays=quick_stop_stays, fault_cleared=fault_cleared)
 
+    def unchanged_by(self, controlword: int) -> bool:
+        """Writing ``controlword`` again changes nothing: it is the last one written and its
+        command (if any) has no transition from the present state (a master repeats its
+        controlword with every set point)."""
+        if controlword != self.controlword:
+            return False
+        command = decode_command(controlword, controlword)
+        return command is None or (self.state, command) not in _TABLE
+
     def command(
         self,
         command: Command,

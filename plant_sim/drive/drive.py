@@ -36,11 +36,14 @@ from types import TracebackType
 
 import can
 import canopen
+import numpy as np
+from canopen.network import NodeScanner
 
 from plant_sim.axis import AxisConfig
 from plant_sim.model import AxisPlant
 from virtual_bus.contract import NMT_COB_ID, NMT_LENGTH, SDO_LENGTH, SdoAbort
 from virtual_bus.frame_guard import FrameFault, FrameGuard
+from virtual_bus.framing import FramePort, OutFrame, frame_port
 
 from . import od as O
 from .cia402 import State402
@@ -67,11 +70,13 @@ __all__ = ["DriveConfig", "SimulatedDrive", "TimeMode", "warm_up"]
 
 
 def warm_up(axis: AxisConfig) -> None:
-    """Load (or compile, on an empty numba cache) both physics kernels the drive steps:
-    ``advance`` (Operation enabled, ramps) and ``advance_torque`` (every other state)."""
+    """Load (or compile, on an empty numba cache) the physics kernels the drive runs:
+    ``advance`` (Operation enabled, ramps), ``advance_torque`` (every other state) and
+    ``read_measured`` (its measuring systems after each step)."""
     plant = AxisPlant(axis)
     plant.advance(0.0)
     plant.advance_torque(0.0)
+    plant.read_measured(np.zeros(4))
 
 
 class SimulatedDrive:
@@ -122,6 +127,9 @@ class SimulatedDrive:
         self._sync_cob_id = 0
         self._rpdo_seen = False
         self._tx_messages: dict[int, can.Message] = {}
+        #: the loop's port while a caller's thread receives (receiving_here), its frames
+        self.port: FramePort | None = None
+        self._tx_frames: dict[int, OutFrame] = {}
 
         od = O.load_drive_od(self.config.eds_path, node_id)
         self._table = O.ObjectTable(od)
@@ -145,11 +153,12 @@ class SimulatedDrive:
             )
         else:
             self._heartbeat = WallClockHeartbeat(lambda: self._network.bus, node_id)
+        self._on_rpdo_frame_cb = self._gated(self._guarded(self._on_rpdo_frame))
         self._pdo = PdoEngine(
             self._table,
             send=self._send,
             subscriber=self._network,
-            on_frame=self._gated(self._guarded(self._on_rpdo_frame)),
+            on_frame=self._on_rpdo_frame_cb,
         )
         self._on_sync_frame_cb = self._gated(self._guarded(self._on_sync_frame))
         for fault in FrameFault:
@@ -258,9 +267,13 @@ class SimulatedDrive:
             for listener in listeners:
                 listener.on_message_received(msg)
 
+        self.port = frame_port(bus, stamped=True)
+        self._tx_frames.clear()
         try:
             yield handle
         finally:
+            self.port = None
+            self._tx_frames.clear()
             if self._started:
                 network.notifier = can.Notifier(
                     bus, network.listeners, self.config.notifier_timeout_s
@@ -278,18 +291,63 @@ class SimulatedDrive:
         bus); the notifier restarts on exit.
         """
         with self.receiving_here() as handle:
-            bus = self._network.bus
-            assert bus is not None
-            recv = bus.recv
+            port = self.port
+            assert port is not None
+            take = self.take
 
             def poll() -> int:
                 n = 0
-                while (msg := recv(0.0)) is not None:
-                    handle(msg)
+                while port.receive(0.0):
+                    take(port, handle)
                     n += 1
                 return n
 
             yield poll
+
+    def take(self, port: FramePort, handle: Callable[[can.Message], None]) -> None:
+        """One frame the caller's thread received on the drive's end of the bus (``port``,
+        :meth:`receiving_here`): a SYNC or an RPDO goes straight to the drive's handler, as
+        the frame guard and canopen's dispatch would hand it over (counted as the guard
+        counts) when nothing but the drive listens to it; anything else as a message to
+        ``handle``."""
+        if port.cob_id >= 0 and self._direct(port.cob_id, port.buffer, port.offset, port.length):
+            return
+        handle(port.message())
+
+    def _direct(self, cob_id: int, buffer: bytearray, offset: int, length: int) -> bool:
+        """Handle a SYNC (0 or 1 byte) or an RPDO (NMT Operational) without a message; False
+        (nothing done) where the guard or canopen's dispatch would do more than call the
+        drive's own callback: another subscriber or listener, a frame the guard refuses, a
+        node the network's scanner would note."""
+        network = self._network
+        subscribers = network.subscribers.get(cob_id)
+        if subscribers is None or len(subscribers) != 1 or len(network.listeners) != 1:
+            return False
+        callback = subscribers[0]
+        if callback is self._on_sync_frame_cb:
+            if length > 1:
+                return False
+            self.guard.accepted += 1
+            try:
+                with self._lock:
+                    self._errors.clear(EMCY_SYNC_LENGTH)
+                    self.on_sync()
+            except Exception as exc:  # as the callback's wrapper: kept for check()
+                logger.exception("drive %d: callback for 0x%03X failed", self.node_id, cob_id)
+                self._callback_errors.append(exc)
+            return True
+        if callback is self._on_rpdo_frame_cb:
+            node = cob_id & 0x7F
+            scanned = (cob_id & 0x780) in NodeScanner.SERVICES and node != 0
+            if self._nmt.state is not NmtState.OPERATIONAL or (
+                scanned and node not in network.scanner.nodes
+            ):
+                return False
+            self.guard.accepted += 1
+            with self._lock:
+                self._pdo.receive(cob_id, memoryview(buffer)[offset : offset + length])
+            return True
+        return False
 
     def stop(self) -> None:
         """Leave the bus: heartbeat, subscriptions and (own) notifier thread stop. The bus
@@ -465,6 +523,15 @@ class SimulatedDrive:
         """Send one frame the drive produces (TPDOs, a SYNC-time heartbeat): canopen's
         ``Network.send_message`` (same lock, same check of the notifier), with one
         :class:`can.Message` per COB-ID built once and rewritten, not one per frame."""
+        port = self.port
+        if port is not None:  # the loop's own frames, rewritten in place
+            frame = self._tx_frames.get(can_id)
+            if frame is None or frame.length != len(data):
+                frame = self._tx_frames[can_id] = port.frame(can_id, len(data))
+            offset = frame.offset
+            frame.buffer[offset : offset + frame.length] = data
+            port.send(frame)
+            return
         network = self._network
         bus = network.bus
         if bus is None:

@@ -26,6 +26,8 @@ from __future__ import annotations
 import logging
 import math
 
+import numpy as np
+
 from plant_sim.axis import AxisConfig, AxisKind
 from plant_sim.model import AxisPlant
 from virtual_bus.contract import SdoAbort
@@ -114,8 +116,10 @@ class ServoAxis:
         self._last_setpoint_rad_s = 0.0  # for the acceleration feed-forward
         self._fault_codes: set[int] = set()
         #: the plant's readings since its last step (hold_measurements)
-        self._held: tuple[float, float, float, float] | None = None
+        self._held: list[float] | None = None
+        self._readings = np.zeros(4)
         self._axis_limit_nm = axis_torque_limit_nm(plant)  # the axis file's, fixed
+        self._ratio = plant.axis.transmission_ratio
         self._word_state: State402 | None = None  # statusword(): state of _state_word
         self._state_word = 0
         self._set_axis_defaults()
@@ -188,11 +192,12 @@ class ServoAxis:
             )
 
     # --- measurements --------------------------------------------------------------------------
-    def _read_plant(self) -> tuple[float, float, float, float]:
-        p = self.plant
-        return (p.motor_position_rad, p.load_position, p.motor_speed_rad_s, p.motor_torque_nm)
+    def _read_plant(self) -> list[float]:
+        readings = self._readings
+        self.plant.read_measured(readings)  # the properties' values, in one compiled call
+        return readings.tolist()  # type: ignore[no-any-return]
 
-    def _measured(self) -> tuple[float, float, float, float]:
+    def _measured(self) -> list[float]:
         """Motor position (rad), load position (load units), motor speed (rad/s), torque
         (N·m) of the plant as it stands (see :meth:`hold_measurements`)."""
         held = self._held
@@ -325,9 +330,12 @@ class ServoAxis:
 
     # --- protection ----------------------------------------------------------------------------
     def _encoder_ok(self) -> bool:
-        """Paper section II.B: |load scale − motor encoder| within 2101h."""
-        difference = abs(self._table.read(O.LOAD_MINUS_MOTOR))
-        return difference <= self._table.value(O.ENCODER_TOLERANCE)
+        """Paper section II.B: |load scale − motor encoder| within 2101h (2104h's value)."""
+        held = self._measured()
+        units = O.load_difference_units(
+            discrepancy(held[0], held[1], self._ratio), self.axis.kind
+        )
+        return abs(units) <= self._table.value(O.ENCODER_TOLERANCE)
 
     def _setpoint_timeout(self) -> None:
         """No RPDO for 2102h SYNCs: EMCY 0x8250 naming the cause (:func:`setpoint_timeout_data`)
@@ -358,6 +366,8 @@ class ServoAxis:
 
     # --- state machine glue --------------------------------------------------------------------
     def _controlword_changed(self, controlword: int) -> None:
+        if self.sm.unchanged_by(controlword):  # the RPDO repeats it every SYNC
+            return
         transitions = self.sm.controlword_written(
             controlword,
             quick_stop_stays=self._table.value(O.QUICK_STOP_OPTION) >= 5,
