@@ -1,117 +1,262 @@
-"""Instructions per lockstep control cycle, counted by valgrind's callgrind (repeatable on a
-shared machine, unlike its clock). Developer tool, not part of the packages.
+"""Instructions per control cycle, counted by valgrind's callgrind (repeatable on a shared
+machine, unlike its clock). Developer tool, not part of the packages.
 
-    python tools/lockstep_instructions.py [--cycles 2000] [--record] [--drive-sync]
+    python tools/lockstep_instructions.py [--path lockstep|bridge|drive] [--bus virtual|udp]
+                                          [--cycles 2000] [--record] [--python]
 
 runs itself under ``valgrind --tool=callgrind --collect-atstart=no
---toggle-collect=functools_reduce`` and prints the instructions per cycle of the paper's
-section X through the full stack (``bridge bench``'s lockstep run; ``--record``: with the
-trace file and the candump log). Only what runs inside one ``functools.reduce`` call is
-counted: the whole ``play_references`` (the start-up is not). ``--drive-sync`` counts instead
-the drive's Python from its SYNC frame (listener entry) to its second TPDO handed to the bus:
-the sends and the physics step after the TPDOs run in nested ``reduce`` calls, which toggle
-the count off again. Needs valgrind (the numba cache gets one more entry for valgrind's CPU
-on the first run: that run is slow). Run from the checkout: ``cd`` there first.
+--toggle-collect=functools_reduce`` on the paper's section X (``bridge bench``'s lockstep
+scenario) and prints the instructions per cycle of one path; only what runs inside a
+``functools.reduce`` call is counted, and a nested call toggles the count off again:
+
+* ``lockstep`` (default): the whole stack for one cycle (``play_references``: bridge, bus,
+  drive, physics; ``--record``: with the trace file and the candump log); start-up
+  included, as this figure has always been measured;
+* ``bridge``: the bridge's cycle alone (``Bridge.run_cycle``: SYNC sent, TPDOs received and
+  decoded, controller, regulator, RPDO sent), the drive's work and the harness's
+  disturbance input toggled off;
+* ``drive``: the drive's work for one SYNC alone: receiving the RPDO and the SYNC, latch,
+  supervision, both TPDOs sent, the physics step (the loop of its process:
+  ``SimulatedDrive.take`` on its port);
+
+both after 200 uncounted cycles. ``--bus udp``: the two ends on ``udp_multicast`` in a
+private network namespace (root), the bus of ``bridge bench``'s real-time runs; ``virtual``:
+python-can's in-process bus. ``--python``: the bridge's cycle core as Python (a bridge
+installed without numba). The drive of ``--bus udp`` is served by the same code as its
+process (``plant_sim drive``), in the bridge's process and thread (lockstep), so that one
+callgrind run sees both. Needs valgrind; run from the checkout (``cd`` there first). Works
+on older checkouts too (before the frame ports: the drive's loop then receives messages),
+for before/after figures.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import dataclasses
 import functools
 import os
 import re
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
+WARM_UP_CYCLES = 200
 
 
-def _inner(cycles: int, record: bool, drive_sync: bool) -> None:
+def counted(call: Callable[[], Any]) -> Any:
+    """``call()`` inside ``functools.reduce``: callgrind toggles its count at entry and exit."""
+    return functools.reduce(lambda _a, _b: call(), [0, 0])
+
+
+@contextlib.contextmanager
+def _udp_axis(axis: Any, params: Any, bridge_config: Any, wait_s: float) -> Iterator[Any]:
+    """Bridge and drive on two udp_multicast ends in this process (inside a namespace), the
+    drive answering each SYNC from the bridge's thread as its process's loop would."""
+    from bridge.node import Bridge
+    from bridge.timing import LockstepPacer
+    from plant_sim.drive import DriveConfig, SimulatedDrive, TimeMode
+    from virtual_bus.udp import LoopbackUdpBus
+
+    drive_bus, bridge_bus = LoopbackUdpBus(), LoopbackUdpBus()
+    try:
+        drive = SimulatedDrive(drive_bus, 2, axis, DriveConfig(time_mode=TimeMode.LOCKSTEP))
+        pacer = LockstepPacer(params.cycle_s, wait_s)
+        bridge = Bridge(bridge_bus, params, axis.kind, pacer, config=bridge_config)
+        drive.start()
+        try:
+            bridge.start()
+            with drive.receiving_here() as handle:
+                port = getattr(drive, "port", None)
+
+                def serve_one() -> None:  # one pass of the drive process's loop
+                    if port is not None:
+                        if port.receive(wait_s):
+                            drive.take(port, handle)
+                    else:  # a checkout before the frame ports: messages
+                        msg = drive_bus.recv(wait_s)
+                        if msg is not None:
+                            handle(msg)
+
+                def peer_poll() -> int:
+                    n = drive.sync_count
+                    while drive.sync_count == n:
+                        serve_one()
+                    return 1
+
+                bridge.peer_poll = peer_poll
+                yield dataclasses.make_dataclass("Sim", ["bridge", "drive"])(bridge, drive)
+        finally:
+            bridge.close()
+            drive.stop()
+    finally:
+        bridge_bus.shutdown()
+        drive_bus.shutdown()
+
+
+def _inner(args: argparse.Namespace) -> None:
     sys.path.insert(0, str(ROOT))
+    import inspect
+
     from bridge import bench
     from bridge.commands.common import PAPER_AXIS, simulated_axis_file
+    from bridge.master import DriveSetup
+    from bridge.node import Bridge, BridgeConfig
     from bridge.sim import play_references, simulated_axis
-    from plant_sim.drive.node import GuardedListener
-    from plant_sim.drive.servo import ServoAxis
     from plant_sim.scenarios import SectionX
 
+    if "compiled" in inspect.signature(Bridge).parameters:  # the cycle core's choice
+        original_init = Bridge.__init__
+
+        def init(self: Bridge, *a: Any, **kw: Any) -> None:
+            kw.setdefault("compiled", not args.python)
+            original_init(self, *a, **kw)
+
+        Bridge.__init__ = init  # type: ignore[method-assign]
     axis = simulated_axis_file(PAPER_AXIS)
+    cycles = args.cycles + (0 if args.path == "lockstep" else WARM_UP_CYCLES)
     end_s = cycles * axis.control.position_cycle
     refs = SectionX(end_s=end_s, stop_s=min(SectionX.stop_s, end_s)).references(axis)
-
-    def counted(call):  # type: ignore[no-untyped-def]
-        return functools.reduce(lambda _a, _b: call(), [0, 0])
-
+    # valgrind runs the start-up some 50 times slower: no SDO timeout may fire
+    slow = DriveSetup(sdo_timeout_s=20.0, state_timeout_s=120.0)
+    config = BridgeConfig(drive_setup=slow)
+    wait_s = 30.0
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
-        with simulated_axis(
-            axis,
-            bench._params(axis),
-            trace_path=tmp_path / "trace.csv" if record else None,
-            keep_trace=False,
-            disturbance=refs.disturbance_nm if record else None,
-            bus_log_path=tmp_path / "bus.log" if record else None,
-        ) as sim:
-            if not drive_sync:
+        if args.bus == "udp":
+            sim_context = _udp_axis(axis, bench._params(axis), config, wait_s)
+        else:
+            sim_context = simulated_axis(
+                axis,
+                bench._params(axis),
+                bridge_config=config,
+                lockstep_wait_s=wait_s,
+                trace_path=tmp_path / "trace.csv" if args.record else None,
+                keep_trace=False,
+                disturbance=refs.disturbance_nm if args.record else None,
+                bus_log_path=tmp_path / "bus.log" if args.record else None,
+            )
+        with sim_context as sim:
+            if args.path == "lockstep":
                 run = counted(lambda: play_references(sim, refs))
             else:
-                listen = GuardedListener.on_message_received
-                advance = ServoAxis.advance
-                send = sim.drive_bus.send
+                bridge = sim.bridge
+                cycle, peer = bridge.run_cycle, bridge.peer_poll
+                bridge_path = args.path == "bridge"
 
-                def on_message(self, msg):  # type: ignore[no-untyped-def]
-                    if msg.arbitration_id == 0x80:
-                        counted(lambda: listen(self, msg))
+                def run_cycle() -> None:
+                    if bridge.cycle_index < WARM_UP_CYCLES:
+                        cycle()
+                    elif bridge_path:
+                        counted(cycle)
                     else:
-                        listen(self, msg)
+                        cycle()
 
-                GuardedListener.on_message_received = on_message  # type: ignore[method-assign]
-                ServoAxis.advance = lambda self: counted(lambda: advance(self))  # type: ignore[method-assign]
-                sim.drive_bus.send = lambda msg, timeout=None: counted(lambda: send(msg, timeout))  # type: ignore[method-assign]
-                run = play_references(sim, refs)
+                def peer_poll() -> int:
+                    if bridge.cycle_index < WARM_UP_CYCLES:
+                        return peer()  # type: ignore[no-any-return]
+                    return counted(peer)  # type: ignore[no-any-return]
+
+                def quiet(hook: Callable[[int], None]) -> Callable[[int], None]:
+                    def run(k: int) -> None:
+                        if bridge.cycle_index < WARM_UP_CYCLES or not bridge_path:
+                            hook(k)
+                        else:
+                            counted(lambda: hook(k))
+
+                    return run
+
+                bridge.run_cycle = run_cycle  # type: ignore[method-assign]
+                bridge.peer_poll = peer_poll
+                if bridge_path:
+                    run = _play_quiet(sim, refs, quiet)
+                else:
+                    run = play_references(sim, refs)
     print(f"cycles {run.cycles}, missed TPDOs {run.counters.missed}, {run.state.name}")
+
+
+def _play_quiet(sim: Any, refs: Any, quiet: Callable[[Any], Any]) -> Any:
+    """play_references with the bridge's before_sync hook (the harness's disturbance input)
+    wrapped in ``quiet`` as soon as play_references has set it."""
+    from bridge.sim import play_references
+
+    bridge = sim.bridge
+    run = bridge.run
+
+    def wrapped_run(*a: Any, **kw: Any) -> int:
+        if bridge.before_sync is not None:
+            bridge.before_sync = quiet(bridge.before_sync)
+        return run(*a, **kw)  # type: ignore[no-any-return]
+
+    bridge.run = wrapped_run
+    return play_references(sim, refs)
+
+
+def _command(args: argparse.Namespace, out: Path) -> list[str]:
+    command = [
+        "valgrind",
+        "--tool=callgrind",
+        "--fair-sched=yes",
+        "--collect-atstart=no",
+        "--toggle-collect=functools_reduce",
+        f"--callgrind-out-file={out}",
+        sys.executable,
+        __file__,
+        "--inner",
+        f"--cycles={args.cycles}",
+        f"--path={args.path}",
+        f"--bus={args.bus}",
+        *(["--record"] if args.record else []),
+        *(["--python"] if args.python else []),
+    ]
+    return command
 
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cycles", type=int, default=2000)
+    parser.add_argument("--path", choices=("lockstep", "bridge", "drive"), default="lockstep")
+    parser.add_argument("--bus", choices=("virtual", "udp"), default="virtual")
     parser.add_argument("--record", action="store_true")
-    parser.add_argument("--drive-sync", action="store_true")
+    parser.add_argument("--python", action="store_true")
     parser.add_argument("--inner", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.cycles < 1:
         print(f"--cycles {args.cycles}: must be >= 1", file=sys.stderr)
         return 2
+    if args.record and (args.bus != "virtual" or args.path != "lockstep"):
+        print("--record: only with --path lockstep --bus virtual", file=sys.stderr)
+        return 2
     if args.inner:
-        _inner(args.cycles, args.record, args.drive_sync)
+        _inner(args)
         return 0
-    with tempfile.TemporaryDirectory() as tmp:
+    with contextlib.ExitStack() as stack:
+        tmp = stack.enter_context(tempfile.TemporaryDirectory())
         out = Path(tmp) / "callgrind.out"
-        command = [
-            "valgrind",
-            "--tool=callgrind",
-            "--fair-sched=yes",
-            "--collect-atstart=no",
-            "--toggle-collect=functools_reduce",
-            f"--callgrind-out-file={out}",
-            sys.executable,
-            __file__,
-            "--inner",
-            f"--cycles={args.cycles}",
-            *(["--record"] if args.record else []),
-            *(["--drive-sync"] if args.drive_sync else []),
-        ]
+        command = _command(args, out)
+        if args.bus == "udp":
+            sys.path.insert(0, str(ROOT))
+            from virtual_bus.netns import NetworkNamespace
+
+            ns = stack.enter_context(NetworkNamespace.create())
+            command = ns.command(command)
         env = dict(os.environ, PYTHONHASHSEED="0")
         done = subprocess.run(command, capture_output=True, text=True, env=env, check=False)
     collected = re.search(r"Collected : (\d+)", done.stderr)
     if done.returncode != 0 or collected is None:
-        print(done.stdout + done.stderr[-2000:], file=sys.stderr)
+        print(done.stdout + done.stderr[-3000:], file=sys.stderr)
         return 1
-    what = "drive SYNC -> 2nd TPDO" if args.drive_sync else "cycle"
     print(done.stdout.strip())
-    print(f"instructions per {what}: {int(collected.group(1)) // args.cycles}")
+    what = {"lockstep": "lockstep cycle", "bridge": "bridge cycle", "drive": "drive SYNC"}
+    print(
+        f"instructions per {what[args.path]} ({args.bus} bus"
+        + (", bridge core in Python" if args.python else "")
+        + f"): {int(collected.group(1)) // args.cycles}"
+    )
     return 0
 
 
