@@ -153,7 +153,7 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
         ),
         Bench(
             "bridge-demo",
-            ("bridge", "demo", "--out", "{out}"),
+            ("hil", "demo", "--out", "{out}"),
             "summary.json",
             (
                 Figure("over the bus: p2p reduction", "p2p_reduction", "%", 100.0),
@@ -215,7 +215,7 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
         ),
         Bench(
             "bridge-bench",
-            ("bridge", "bench", "--seconds", f"{realtime_s:g}", "--json", "{out}/bench.json"),
+            ("hil", "bench", "--seconds", f"{realtime_s:g}", "--json", "{out}/bench.json"),
             "bench.json",
             (
                 Figure("lockstep, full stack", "lockstep.cycles_per_s", "cycles/s"),
@@ -259,7 +259,7 @@ def _realtime_bench(rate_hz: int, seconds: float) -> Bench:
     return Bench(
         f"bridge-realtime-{rate_hz // 1000}k",
         (
-            "bridge",
+            "hil",
             "bench",
             "--skip-lockstep",
             "--seconds",
@@ -395,7 +395,7 @@ def bench(argv: Sequence[str], quiet: bool, run: Callable[[Bench, bool], dict] =
         "--realtime-seconds",
         type=float,
         default=60.0,
-        help="length of bridge bench's real-time run (default 60)",
+        help="length of hil bench's real-time run (default 60)",
     )
     parser.add_argument(
         "--only", nargs="+", metavar="NAME", help="only these benchmarks (names: see the table)"
@@ -449,7 +449,7 @@ def main(argv: list[str]) -> int:
     if verb == "bench":
         return bench(rest, quiet)
     if verb == "demo":
-        cmd = [str(PY), "-m", "bridge", "demo", *(rest or ["--out", "out/demo"])]
+        cmd = [str(PY), "-m", "hil", "demo", *(rest or ["--out", "out/demo"])]
         if quiet:
             cmd.append("--quiet")
     elif verb == "test":

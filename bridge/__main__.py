@@ -1,4 +1,4 @@
-"""``python -m bridge COMMAND``: run, demo, busload, bench, host-latency, eds, config, probe.
+"""``python -m bridge COMMAND``: run, probe, config, eds, busload, host-latency.
 
 Each command is a module under :mod:`bridge.commands` (``NAME``, ``HELP``,
 ``add_arguments``, ``run``), run by :mod:`virtual_bus.cli`. Bad arguments or files end with a
@@ -14,14 +14,14 @@ from collections.abc import Sequence
 
 import can
 
-from plant_sim.errors import PlantSimError
 from virtual_bus import VirtualBusError, cli
 from virtual_bus.errors import BusUnavailableError, RealTimeRefused
+from virtual_bus.formats import FormatError
 
 from .commands.common import PROG
 from .errors import BridgeError, DriveSetupError
 
-COMMANDS = ("run", "demo", "busload", "bench", "host_latency", "eds", "config", "probe")
+COMMANDS = ("run", "probe", "config", "eds", "busload", "host_latency")
 DESCRIPTION = (
     "CANopen bridge running the backlash regulator of Mohammadiasl, 'Vibration Detection and "
     "Backlash Suppression in Machine Tools' (eq. 7, 15) against a CiA 402 drive in cyclic "
@@ -32,17 +32,22 @@ FAILURES = (
     cli.Failure((DriveSetupError,), cli.EXIT_FAILURE, "drive start-up failed"),
     cli.Failure((RealTimeRefused,), cli.EXIT_FAILURE, "refused"),
     cli.Failure((BusUnavailableError,), cli.EXIT_FAILURE),
-    cli.Failure((BridgeError, PlantSimError, VirtualBusError)),
+    cli.Failure((BridgeError, FormatError, VirtualBusError)),
     cli.Failure((can.CanError,), cli.EXIT_FAILURE, "CAN bus error"),
     cli.FILE_ERRORS,
     cli.Failure((OSError,), cli.EXIT_FAILURE),
 )
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def quiet_sdo_client_logging() -> None:
+    """Warnings as one line each; canopen's SDO client is silenced, because the bridge's
+    master reports a failed SDO transfer itself, with object and tries."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    # the bridge's master reports a failed SDO transfer itself, with object and tries
     logging.getLogger("canopen.sdo.client").setLevel(logging.CRITICAL)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    quiet_sdo_client_logging()
     return cli.main(PROG, DESCRIPTION, cli.load_commands("bridge", COMMANDS), argv, FAILURES)
 
 

@@ -18,7 +18,7 @@ import logging
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-from virtual_bus.contract import DataType
+from virtual_bus.contract import DataType, rpdo_cob_id, tpdo_cob_id
 
 from .errors import DriveSetupError
 from .layout import CycleLayout, MappedObject, RxFrame, Signal, struct_code
@@ -408,7 +408,7 @@ def plan(
     tpdo_plans = tuple(
         PdoPlan(
             p.number,
-            cob_of.get(p.number, (0x180 + 0x100 * (p.number - 1) + drive_id) & 0x7FF),
+            cob_of.get(p.number, tpdo_cob_id(p.number, drive_id)),
             True,
             tt,
             tuple(items),
@@ -422,7 +422,7 @@ def plan(
             f"({0x1400 + profile.rpdo - 1:04X}h); set pdo.rpdo in the drive profile",
             (0x1400 + profile.rpdo - 1, 1),
         )
-    rpdo_cob = profile.rpdo_cob_id or (0x200 + 0x100 * (profile.rpdo - 1) + drive_id) & 0x7FF
+    rpdo_cob = profile.rpdo_cob_id or rpdo_cob_id(profile.rpdo, drive_id)
     rpdo = PdoPlan(
         profile.rpdo,
         rpdo_cob,
@@ -469,7 +469,10 @@ def plan(
     if encoder_id is not None:
         frames.append(
             RxFrame(
-                f"encoder {encoder_id} TPDO1", 0x180 + encoder_id, "<i", (Signal.LOAD_POSITION,)
+                f"encoder {encoder_id} TPDO1",
+                tpdo_cob_id(1, encoder_id),
+                "<i",
+                (Signal.LOAD_POSITION,),
             )
         )
     layout = CycleLayout(tuple(frames), rpdo_cob, "<Hi")

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from virtual_bus import CIA301_BITRATES, BusLoad, bus_load
+from virtual_bus.contract import SYNC_COB_ID
 
 from .errors import BridgeConfigError
 from .layout import RPDO1, TPDO1, TPDO2
@@ -26,7 +27,7 @@ class CyclicFrame:
 
 def cyclic_frames(drive_ids: tuple[int, ...]) -> list[CyclicFrame]:
     """SYNC plus TPDO1, TPDO2 and RPDO1 of each drive, in bus order (by CAN id)."""
-    frames = [CyclicFrame("SYNC", 0x080, 0)]
+    frames = [CyclicFrame("SYNC", SYNC_COB_ID, 0)]
     for drive in drive_ids:
         for spec, name in ((TPDO1, "TPDO1"), (TPDO2, "TPDO2"), (RPDO1, "RPDO1")):
             frames.append(CyclicFrame(f"{name} drive {drive}", spec.cob_id(drive), spec.dlc))

@@ -36,7 +36,7 @@ from canopen.profiles.p402 import State402
 
 from regulator import core as rcore
 from regulator.errors import require_finite_input
-from virtual_bus.contract import NmtState
+from virtual_bus.contract import CW_FAULT_RESET, NmtState
 
 from . import cyclecore as K
 from .errors import ParameterError, SdoAbort
@@ -137,7 +137,7 @@ def enable_controlword(state: Drive402State, last_controlword: int) -> int:
         return State402.CW_OPERATION_ENABLED
     target = State402.next_state_indirect(state.value)
     cw = State402.TRANSITIONTABLE[(state.value, target)]
-    if cw == State402.CW_SWITCH_ON_DISABLED and last_controlword & 0x0080:
+    if cw == State402.CW_SWITCH_ON_DISABLED and last_controlword & CW_FAULT_RESET:
         return State402.CW_DISABLE_VOLTAGE
     return cw
 

@@ -237,19 +237,28 @@ _compiled: Functions | None = None
 
 
 def numba_available() -> bool:
-    """Whether numba can be imported (without importing it)."""
-    return importlib.util.find_spec("numba") is not None
+    """Whether numba is installed (found without importing it)."""
+    try:
+        return importlib.util.find_spec("numba") is not None
+    except ImportError:
+        return False
 
 
 def load(compiled: bool | None = None) -> Functions:
     """The functions to run: ``compiled`` True: numba's (raises ImportError without numba),
-    False: Python's, None: numba's where it is installed. The first compiled load compiles
-    (or loads numba's cache of) all three and runs them once, so no cycle ever compiles."""
+    False: Python's, None: numba's where it is installed (``pip install .[fast]``), else
+    Python's. The first compiled load compiles (or loads numba's cache of) all three and
+    runs them once, so no cycle ever compiles."""
     global _compiled
     if compiled is False or (compiled is None and not numba_available()):
         return PYTHON
     if _compiled is None:
-        _compiled = _compile()
+        try:
+            _compiled = _compile()
+        except ImportError:
+            if compiled:
+                raise
+            return PYTHON
     return _compiled
 
 

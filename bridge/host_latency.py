@@ -11,7 +11,7 @@ SYNC), and its maximum bounds from below the largest SYNC-to-set-point latency.
 
 :func:`measure` runs it (the runner is injectable) and :func:`parse_cyclictest_json` reads
 its ``--json`` file; the hypervisor's steal time over the run comes from ``/proc/stat``
-(:func:`bridge.bench_realtime.steal_s`).
+(:func:`virtual_bus.realtime.steal_s`).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ move file (:func:`load_move_file`), and the target-position object 2010h (the OD
 a :class:`Move`).
 
 The speed of sample k is the forward difference ``(x[k+1] - x[k]) / cycle`` -- the
-interpolator's speed over the coming cycle, as in :meth:`plant_sim.simulate.References
+interpolator's speed over the coming cycle, as in :meth:`plant_sim.physics.simulate.References
 .from_position`; omega_s = k_r * speed is what the regulator compares omega_c with (Fig. 5).
 Stepped once per cycle, no allocation per step.
 """
@@ -19,10 +19,9 @@ import tomllib
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
-
-from plant_sim.simulate import References
 
 from .errors import MoveError, MoveFileError
 
@@ -61,6 +60,16 @@ class Move:
         _finite("dwell_s", self.dwell_s, low=0.0)
 
 
+class SampledReference(Protocol):
+    """Position and speed references sample by sample (load units, load units/s)."""
+
+    @property
+    def position(self) -> np.ndarray: ...
+
+    @property
+    def speed(self) -> np.ndarray: ...
+
+
 @dataclass(frozen=True)
 class Table:
     """A reference given sample by sample (absolute positions, load units; speeds load
@@ -82,8 +91,9 @@ class Table:
         object.__setattr__(self, "speed", spd)
 
     @classmethod
-    def from_references(cls, refs: References) -> Table:
-        """The interpolator part of a :class:`plant_sim.simulate.References`."""
+    def from_references(cls, refs: SampledReference) -> Table:
+        """The interpolator part of a reference table (e.g. the simulator's
+        ``References``: anything with ``position`` and ``speed`` arrays)."""
         return cls(refs.position, refs.speed)
 
 

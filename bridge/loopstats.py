@@ -4,7 +4,7 @@ Per cycle (wall clock, s): how late the SYNC left against its slot on the schedu
 -> set point (RPDO) sent, and the bridge's own share of it (both TPDOs in -> RPDO sent).
 Counts: SYNC slots skipped, cycles that overran (a slot after them was skipped) and the
 longest run of them, frames the between-cycles service had to drop, errors caught on the
-cycle path. :func:`summary` turns them into the figures of ``python -m bridge bench``:
+cycle path. :func:`summary` turns them into the figures of ``python -m hil bench``:
 median / p99 / max, a histogram and the jitter of SYNC against its schedule.
 """
 

@@ -36,8 +36,8 @@ from dataclasses import dataclass, replace
 import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from plant_sim.axis import AxisKind
-from virtual_bus.contract import COB_ID_INVALID, NmtCommand
+from virtual_bus.contract import COB_ID_INVALID, NmtCommand, pdo_cob_id, tpdo_cob_id
+from virtual_bus.formats.axis import AxisKind
 
 from .adapt import (
     CANDIDATES,
@@ -274,7 +274,7 @@ class DriveMaster:
     def disable_pdo(self, transmit: bool, number: int) -> None:
         """Mark a PDO outside the layout invalid; a drive without it is fine."""
         index = (0x1800 if transmit else 0x1400) + number - 1
-        cob = (0x180 if transmit else 0x200) + 0x100 * (number - 1) + self.drive.id
+        cob = pdo_cob_id(transmit, number, self.drive.id)
         current = self._u32(index, 1)
         if current is None:
             return
@@ -432,7 +432,7 @@ class DriveMaster:
                 subindex=0,
             )
         position = Item(Signal.LOAD_POSITION, ENCODER_POSITION, "u32")
-        tpdo = PdoPlan(1, 0x180 + encoder_id, True, 1, (position,))
+        tpdo = PdoPlan(1, tpdo_cob_id(1, encoder_id), True, 1, (position,))
         sub.configure_pdo(tpdo)
         sub.write(0x1017, 0, _U16.pack(self.setup.heartbeat_producer_ms), " (producer heartbeat)")
         self.transfers += sub.transfers

@@ -39,14 +39,17 @@ import can
 import canopen
 import numpy as np
 
-from plant_sim.axis import AxisKind
 from virtual_bus.contract import (
     EMCY_LENGTH,
     HEARTBEAT_LENGTH,
     NMT_LENGTH,
     SDO_LENGTH,
+    SDO_TX_BASE,
+    emcy_cob_id,
+    heartbeat_cob_id,
     sdo_rx_cob_id,
 )
+from virtual_bus.formats.axis import AxisKind
 from virtual_bus.frame_guard import FrameFault, FrameGuard
 from virtual_bus.framing import FramePort, MessagePort, OutFrame, ReusedMessage, frame_port
 from virtual_bus.realtime import GcBetweenCycles
@@ -286,7 +289,7 @@ class Bridge:
     # --- frames -----------------------------------------------------------------------------
     def _classify(self, cob_id: int, length: int) -> FrameFault | None:
         need = self._lengths.get(cob_id)
-        if need is None and 0x581 <= cob_id <= 0x5FF:
+        if need is None and SDO_TX_BASE < cob_id <= SDO_TX_BASE + 0x7F:
             need = SDO_LENGTH  # an SDO answer to the bridge's client (drive, encoder node)
         if need is None:
             # the bridge produces SYNC (1005h bit 30): a SYNC it receives came from another node
@@ -372,8 +375,8 @@ class Bridge:
             self.controller.set_scaling(self.scaling)
             if info.encoder_id is not None:  # before use_layout, which admits its frames
                 self.controller.encoder_id = info.encoder_id
-                self._encoder_heartbeat = 0x700 + info.encoder_id
-                self._encoder_emcy = 0x080 + info.encoder_id  # CiA 301 default 1014h
+                self._encoder_heartbeat = heartbeat_cob_id(info.encoder_id)
+                self._encoder_emcy = emcy_cob_id(info.encoder_id)  # CiA 301 default 1014h
                 self._supervision_ids = self._supervision_ids | {
                     self._encoder_heartbeat,
                     self._encoder_emcy,

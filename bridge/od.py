@@ -2,7 +2,7 @@
 
 The table (:data:`OBJECTS`) is the single source: :func:`bridge.eds.render_eds` writes the EDS that
 CANopen tools read, :func:`load_od` reads that file back with ``canopen.import_od`` for the
-bridge's own :class:`canopen.LocalNode`, and ``tests/test_bridge_od.py`` checks that the
+bridge's own :class:`canopen.LocalNode`, and ``tests/bridge/test_od.py`` checks that the
 committed file equals the rendering and that every object behaves in a running node.
 
 Units and scaling (also in each object's ``Unit``/``Description`` keys, a python-canopen
@@ -24,10 +24,12 @@ from pathlib import Path
 import canopen
 from canopen.objectdictionary import datatypes as dt
 
+from virtual_bus.shipped import BRIDGE_EDS
+
 from .errors import BridgeConfigError
 
 #: Where the rendered EDS lives in the repository.
-DEFAULT_EDS_PATH = Path(__file__).resolve().parent.parent / "config" / "bridge.eds"
+DEFAULT_EDS_PATH = BRIDGE_EDS
 DEFAULT_NODE_ID = 1
 DEFAULT_DRIVE_ID = 2
 PAPER_KR = 100.0 * math.pi  # rad/m, section IX

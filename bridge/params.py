@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
-from plant_sim.axis import AxisConfig, AxisKind
 from regulator import (
     DEFAULT_BETA_T_RAD_S,
     DEFAULT_N,
@@ -26,6 +25,7 @@ from regulator import (
     RegulatorConfig,
     RegulatorConfigError,
 )
+from virtual_bus.formats.axis import AxisConfig, AxisKind
 
 from .errors import ParameterError, SdoAbort
 from .interpolator import MAX_ABS_TARGET

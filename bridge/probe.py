@@ -19,9 +19,9 @@ import can
 import canopen
 from canopen.objectdictionary import ODVariable
 
-from plant_sim.axis import AxisKind
 from virtual_bus import BusConfig, open_bus
 from virtual_bus.contract import NmtCommand
+from virtual_bus.formats.axis import AxisKind
 
 from .adapt import (
     CANDIDATES,

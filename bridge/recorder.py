@@ -1,10 +1,10 @@
 """Recording of the loop: the trace file and a candump log of the bus traffic.
 
-* :class:`TraceRecorder`: one row per cycle, the columns of ``shared/spec/trace-file.md``
+* :class:`TraceRecorder`: one row per cycle, the columns of ``docs/trace-file.md``
   (time, position_reference, speed_setpoint, motor_position, motor_speed, load_position,
   motor_torque, disturbance when known) plus beta, lambda and the loop's own values
   (:data:`EXTRA_COLUMNS`); recorded after the set point has gone out and written through
-  :class:`plant_sim.trace.TraceWriter` in whole blocks of ``flush_rows`` rows (a killed
+  :class:`virtual_bus.formats.trace.TraceWriter` in whole blocks of ``flush_rows`` rows (a killed
   recorder leaves a file readable up to its last block); optionally kept in memory for
   :meth:`TraceRecorder.trace`.
 * :class:`BusLog`: every frame sent or received, in ``candump -L`` format through python-can's
@@ -25,8 +25,8 @@ from pathlib import Path
 import can
 import numpy as np
 
-from plant_sim.trace import RECORDED_COLUMNS, Trace, TraceWriter
 from virtual_bus import BusConfig, Interface
+from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace, TraceWriter
 
 from .cycle import CycleController
 
@@ -203,7 +203,7 @@ class BusLog:
                 writer.on_message_received(msg)
             else:
                 # CanutilsLogWriter.on_message_received's line for a standard data frame,
-                # written here without its general case (tests/test_bridge_recorder.py
+                # written here without its general case (tests/bridge/test_recorder.py
                 # checks the file byte for byte against python-can's writer)
                 if timestamp < writer.last_timestamp:
                     timestamp = writer.last_timestamp

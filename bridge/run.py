@@ -17,9 +17,9 @@ from pathlib import Path
 
 import can
 
-from plant_sim.axis import AxisConfig
 from regulator import RegulatorConfig
 from virtual_bus import BusConfig, bus_load, open_bus
+from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 from .busload import layout_load

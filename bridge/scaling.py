@@ -19,11 +19,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from plant_sim.axis import AxisKind
 from virtual_bus.contract import INT32_MAX as INT32_MAX
 from virtual_bus.contract import INT32_MIN as INT32_MIN
 from virtual_bus.contract import LOAD_INCREMENTS_PER_M, LOAD_INCREMENTS_PER_RAD, PERMILLE
 from virtual_bus.contract import MOTOR_INCREMENTS_PER_REV as MOTOR_INCREMENTS_PER_REV
+from virtual_bus.formats.axis import AxisKind
 
 from .errors import BridgeConfigError
 

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 from virtual_bus import cli
 from virtual_bus.errors import RealTimeRefused
+from virtual_bus.formats import FormatError
 
 from .errors import PlantSimError
 
@@ -38,7 +39,13 @@ DESCRIPTION = (
 )
 
 
+#: What ``pip install 'backlash-bridge[sim]'`` adds and every simulator command needs.
+SIM_MODULES = ("numba", "matplotlib")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    if (code := cli.missing_extra(PROG, SIM_MODULES, "sim")) is not None:
+        return code
     return cli.main(
         PROG,
         DESCRIPTION,
@@ -46,7 +53,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv,
         failures=(
             cli.Failure((RealTimeRefused,), cli.EXIT_FAILURE, "refused"),
-            cli.Failure((PlantSimError, OSError)),
+            cli.Failure((PlantSimError, FormatError, OSError)),
         ),
     )
 

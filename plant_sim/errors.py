@@ -7,37 +7,12 @@ class PlantSimError(Exception):
     """Root of every error raised by :mod:`plant_sim`."""
 
 
-class AxisFileError(PlantSimError, ValueError):
-    """An axis file (``axis-file.md``) is malformed or non-physical.
-
-    ``key`` is the dotted key (``"mechanics.load_mass"``) or section, ``value`` what was found.
-    """
-
-    def __init__(self, message: str, *, key: str | None = None, value: object = None) -> None:
-        super().__init__(message)
-        self.key = key
-        self.value = value
-
-
-class TraceFileError(PlantSimError, ValueError):
-    """A servo trace (``trace-file.md``) is malformed; ``column`` / ``row`` name where."""
-
-    def __init__(self, message: str, *, column: str | None = None, row: int | None = None) -> None:
-        super().__init__(message)
-        self.column = column
-        self.row = row
-
-
-class TraceWarning(UserWarning):
-    """A trace column looks implausible for its unit (never rescaled silently)."""
-
-
 class ScenarioError(PlantSimError, ValueError):
     """Inputs of a simulation run (references, disturbances, options) do not fit together."""
 
 
 class MonitorError(PlantSimError):
-    """Root of the fleet monitor's errors (:mod:`plant_sim.monitor`)."""
+    """Root of the fleet monitor's errors (:mod:`plant_sim.fleet`)."""
 
 
 class RecordingError(MonitorError, ValueError):

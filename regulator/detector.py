@@ -47,7 +47,7 @@ class VibrationDetector:
         self._tf_s = float(config.tf_s)
         # a list of Python floats, not a float64 array: core.detector_step reads and writes
         # it element by element, and a numpy scalar costs about twice a float per operation
-        # (same IEEE binary64 arithmetic, so the same bits; tests/test_regulator_detector.py
+        # (same IEEE binary64 arithmetic, so the same bits; tests/regulator/test_detector.py
         # checks them against the function compiled by numba as the simulator runs it)
         self._state = [0.0] * core.detector_state_size(self._n)
 

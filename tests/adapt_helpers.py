@@ -22,14 +22,13 @@ import pytest
 
 from bridge.master import DriveMaster, DriveSetup
 from bridge.profile import DriveProfile
+from tests.paths import DATA
+from virtual_bus.shipped import SHARED_DIR
 
 #: The vendors' EDS files are third-party data: they are not part of this repository but of
 #: the shared data beside it (``shared/vendor_eds/``, with their sources and licences in its
 #: README); ``BACKLASH_VENDOR_EDS`` points elsewhere. Tests that need one skip without it.
-VENDOR_EDS = Path(
-    os.environ.get("BACKLASH_VENDOR_EDS")
-    or Path(__file__).resolve().parents[1].parent / "shared" / "vendor_eds"
-)
+VENDOR_EDS = Path(os.environ.get("BACKLASH_VENDOR_EDS") or SHARED_DIR / "vendor_eds")
 TECHNOSOFT_EDS = VENDOR_EDS / "technosoft_ipos.eds"
 YIYOU_EDS = VENDOR_EDS / "yiyou_euservo.eds"
 
@@ -41,7 +40,7 @@ def require_eds(path: Path) -> Path:
     return path
 
 
-ENCODER_EDS = Path(__file__).resolve().parent / "data" / "cia406_encoder.eds"
+ENCODER_EDS = DATA / "cia406_encoder.eds"
 SETUP = DriveSetup(sdo_timeout_s=2.0, state_timeout_s=2.0)
 
 

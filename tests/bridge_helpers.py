@@ -21,10 +21,10 @@ from bridge.cycle import CycleController
 from bridge.layout import RPDO1_STRUCT, TPDO1_STRUCT, TPDO2_STRUCT
 from bridge.params import BridgeParams
 from bridge.scaling import MOTOR_INCREMENTS_PER_RAD, Scaling
-from plant_sim.axis import AxisConfig, load_axis
-from plant_sim.model import AxisPlant, KernelOptions
-from plant_sim.simulate import References
+from plant_sim.physics.model import AxisPlant, KernelOptions
+from plant_sim.physics.simulate import References
 from regulator import RegulatorConfig
+from virtual_bus.formats.axis import AxisConfig, load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
 

@@ -22,12 +22,12 @@ import time
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import can
 import can.interfaces.virtual as can_virtual
 import pytest
 
+from tests.paths import ROOT
 from virtual_bus import BusConfig, Interface, available_modes, open_bus, resolve
 from virtual_bus.netns import NetworkNamespace, netns_problem
 
@@ -179,4 +179,4 @@ def private_netns(netns_skip_reason: str | None) -> Iterator[NetworkNamespace]:
 @pytest.fixture(scope="session")
 def subprocess_env() -> dict[str, str]:
     """os.environ with PYTHONPATH = this checkout (a subprocess imports these packages)."""
-    return {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    return {**os.environ, "PYTHONPATH": str(ROOT)}

@@ -5,7 +5,7 @@ machine, unlike its clock). Developer tool, not part of the packages.
                                           [--cycles 2000] [--record] [--python]
 
 runs itself under ``valgrind --tool=callgrind --collect-atstart=no
---toggle-collect=functools_reduce`` on the paper's section X (``bridge bench``'s lockstep
+--toggle-collect=functools_reduce`` on the paper's section X (``hil bench``'s lockstep
 scenario) and prints the instructions per cycle of one path; only what runs inside a
 ``functools.reduce`` call is counted, and a nested call toggles the count off again:
 
@@ -20,7 +20,7 @@ scenario) and prints the instructions per cycle of one path; only what runs insi
   ``SimulatedDrive.take`` on its port);
 
 both after 200 uncounted cycles. ``--bus udp``: the two ends on ``udp_multicast`` in a
-private network namespace (root), the bus of ``bridge bench``'s real-time runs; ``virtual``:
+private network namespace (root), the bus of ``hil bench``'s real-time runs; ``virtual``:
 python-can's in-process bus. ``--python``: the bridge's cycle core as Python (a bridge
 installed without numba). The drive of ``--bus udp`` is served by the same code as its
 process (``plant_sim drive``), in the bridge's process and thread (lockstep), so that one
@@ -102,12 +102,13 @@ def _inner(args: argparse.Namespace) -> None:
     sys.path.insert(0, str(ROOT))
     import inspect
 
-    from bridge import bench
-    from bridge.commands.common import PAPER_AXIS, simulated_axis_file
     from bridge.master import DriveSetup
     from bridge.node import Bridge, BridgeConfig
-    from bridge.sim import play_references, simulated_axis
-    from plant_sim.scenarios import SectionX
+    from hil import bench
+    from hil.commands.common import simulated_axis_file
+    from hil.harness import play_references, simulated_axis
+    from plant_sim.paper.scenarios import SectionX
+    from virtual_bus.shipped import PAPER_AXIS
 
     if "compiled" in inspect.signature(Bridge).parameters:  # the cycle core's choice
         original_init = Bridge.__init__
@@ -172,17 +173,14 @@ def _inner(args: argparse.Namespace) -> None:
 
                 bridge.run_cycle = run_cycle  # type: ignore[method-assign]
                 bridge.peer_poll = peer_poll
-                if bridge_path:
-                    run = _play_quiet(sim, refs, quiet)
-                else:
-                    run = play_references(sim, refs)
+                run = _play_quiet(sim, refs, quiet) if bridge_path else play_references(sim, refs)
     print(f"cycles {run.cycles}, missed TPDOs {run.counters.missed}, {run.state.name}")
 
 
 def _play_quiet(sim: Any, refs: Any, quiet: Callable[[Any], Any]) -> Any:
     """play_references with the bridge's before_sync hook (the harness's disturbance input)
     wrapped in ``quiet`` as soon as play_references has set it."""
-    from bridge.sim import play_references
+    from hil.harness import play_references
 
     bridge = sim.bridge
     run = bridge.run

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import math
 import os
 import select
@@ -83,8 +84,37 @@ class Failure:
     label: str = ""
 
 
+#: The console scripts pip installs (``[project.scripts]``) and the module each one runs: a
+#: command started under one of these names says that name in its usage and errors.
+CONSOLE_SCRIPTS = {
+    "backlash-bridge": "python -m bridge",
+    "backlash-hil": "python -m hil",
+    "backlash-sim": "python -m plant_sim",
+    "backlash-bus": "python -m virtual_bus",
+}
+
 #: Input errors every package shares: a file that is missing or unreadable is bad input.
 FILE_ERRORS = Failure((FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError))
+
+
+def started_as(prog: str) -> str:
+    """``prog``, or the console script's name when the process was started by it."""
+    name = Path(sys.argv[0]).name
+    return name if CONSOLE_SCRIPTS.get(name) == prog else prog
+
+
+def missing_extra(prog: str, modules: Sequence[str], extra: str) -> int | None:
+    """One line and exit status 1 when a module an optional extra installs is missing (a
+    bridge-only install runs ``python -m plant_sim``), else None."""
+    absent = [m for m in modules if importlib.util.find_spec(m) is None]
+    if not absent:
+        return None
+    return print_error(
+        started_as(prog),
+        f"{', '.join(absent)} not installed: this part of the project needs the '{extra}' "
+        f"extra (pip install 'backlash-bridge[{extra}]')",
+        EXIT_FAILURE,
+    )
 
 
 def load_commands(package: str, names: Sequence[str]) -> list[ModuleType]:
@@ -128,6 +158,8 @@ def main(
     ``failures`` are tried in order after :class:`UsageError` (always exit 2) and before
     :data:`FILE_ERRORS`; ``defaults`` are set on the namespace of every command (injected
     collaborators of tests, e.g. a fake ``ip`` runner)."""
+    if argv is None:
+        prog = started_as(prog)
     parser = build_parser(prog, description, commands)
     if defaults:
         parser.set_defaults(**defaults)

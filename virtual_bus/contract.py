@@ -61,6 +61,35 @@ def rpdo_cob_id(number: int, node_id: int) -> int:
     return RPDO_BASES[number - 1] + _node(node_id)
 
 
+def restricted_cob_id(can_id: int) -> bool:
+    """CiA 301 restricted COB-IDs (NMT, SYNC/EMCY, TIME, SDO, NMT error control, LSS)."""
+    return (
+        can_id <= 0x07F
+        or 0x101 <= can_id <= 0x180
+        or SDO_TX_BASE < can_id <= SDO_TX_BASE + 0x7F
+        or SDO_RX_BASE < can_id <= SDO_RX_BASE + 0x7F
+        or 0x6E0 <= can_id <= 0x6FF
+        or HEARTBEAT_BASE < can_id <= CAN_ID_MASK
+    )
+
+
+def pdo_cob_id(transmit: bool, number: int, node_id: int) -> int:
+    """Default COB-ID of TPDO (``transmit``) or RPDO ``number`` (1..4) of ``node_id``."""
+    return (tpdo_cob_id if transmit else rpdo_cob_id)(number, node_id)
+
+
+def pdo_of_cob_id(cob_id: int) -> tuple[bool, int, int] | None:
+    """(transmit, number, node-ID) of a COB-ID in a pre-defined PDO range, else None."""
+    base, node_id = cob_id & 0x780, cob_id & 0x7F
+    if node_id == 0:
+        return None
+    if base in TPDO_BASES:
+        return True, TPDO_BASES.index(base) + 1, node_id
+    if base in RPDO_BASES:
+        return False, RPDO_BASES.index(base) + 1, node_id
+    return None
+
+
 def emcy_cob_id(node_id: int) -> int:
     return EMCY_BASE + _node(node_id)
 
@@ -225,16 +254,6 @@ def pdo_struct(data_types: Sequence[int]) -> struct.Struct:
         return struct.Struct("<" + "".join(STRUCT_FORMATS[DataType(t)] for t in data_types))
     except (KeyError, ValueError):
         raise ValueError(f"data types {list(data_types)}: only fixed-size types map") from None
-
-
-def pack_entries(data_types: Sequence[int], values: Sequence[int | float]) -> bytes:
-    """PDO payload of mapped entries (data types in mapping order)."""
-    return pdo_struct(data_types).pack(*values)
-
-
-def unpack_entries(data_types: Sequence[int], data: bytes) -> tuple[int | float, ...]:
-    """Values of mapped entries from a payload of exactly their length (struct.error else)."""
-    return pdo_struct(data_types).unpack(data)
 
 
 # --- time modes ---------------------------------------------------------------------------------

@@ -15,7 +15,8 @@ it thousands of times a second (lockstep, docs/bridge.md). Only the path is shor
 * receive: without filters, the queue is read directly (``BusABC.recv`` reads the clock twice
   and checks the filters for every frame); with filters, python-can's ``recv``.
 
-``tests/test_inprocess_bus.py`` checks frames against python-can's own ``VirtualBus`` both ways.
+``tests/virtual_bus/test_inprocess.py`` checks frames against python-can's own ``VirtualBus``
+both ways.
 """
 
 from __future__ import annotations

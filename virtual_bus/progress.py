@@ -29,7 +29,7 @@ from typing import TextIO
 class Bar:
     """A counted stage: ``update(n)``, ``set_description(text)`` (a new sub-stage), ``close``.
 
-    Compatible with what :func:`plant_sim.diagnose.engine.diagnose` expects of a progress bar.
+    Compatible with what :func:`plant_sim.diagnosis.engine.diagnose` expects of a progress bar.
     """
 
     def __init__(self, progress: Progress, total: int | None, desc: str, unit: str) -> None:

@@ -36,6 +36,7 @@ import ctypes.util
 import gc
 import os
 from dataclasses import dataclass
+from pathlib import Path
 
 from .errors import RealTimeConfigError, RealTimeRefused
 
@@ -278,3 +279,25 @@ def realtime_options(args: argparse.Namespace) -> RealTimeOptions:
         freeze_gc=args.freeze_gc,
         busy_poll=args.busy_poll,
     )
+
+
+# --- the host ---------------------------------------------------------------------------
+def steal_s(stat_text: str) -> dict[str, float]:
+    """Time the hypervisor ran something else while each CPU had work (the ``steal`` column
+    of ``/proc/stat``, in USER_HZ ticks), s per CPU ("cpu0", ...). On a virtual machine a
+    thread can lose the CPU for milliseconds this way, whatever its priority."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for line in stat_text.splitlines():
+        fields = line.split()
+        if fields and fields[0].startswith("cpu") and fields[0] != "cpu" and len(fields) > 8:
+            out[fields[0]] = int(fields[8]) / tick
+    return out
+
+
+def host_steal_s() -> dict[str, float]:
+    """:func:`steal_s` of this host now (empty where there is no /proc/stat)."""
+    try:
+        return steal_s(Path("/proc/stat").read_text())
+    except OSError:
+        return {}

@@ -12,7 +12,7 @@ drops a received datagram that carries that token before it is decoded.
 The wire format is python-can's, field for field (``can.interfaces.udp_multicast.utils``:
 a msgpack map of the :class:`can.Message` fields, the timestamp taken from the kernel's
 ``SO_TIMESTAMPNS``), so python-can's own ``UdpMulticastBus`` and this class talk to each
-other (``tests/test_udp_bus.py`` checks it against python-can's class). Only the path is
+other (``tests/virtual_bus/test_udp.py`` checks it against python-can's class). Only the path is
 shorter, for a loop that sends and receives a few frames every millisecond:
 
 * send: the frame's fields go straight into the map (python-can's ``pack_message`` of a

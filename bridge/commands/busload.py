@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from plant_sim.axis import load_axis
 from virtual_bus import cli
-
-from .common import PAPER_AXIS
+from virtual_bus.formats.axis import load_axis
+from virtual_bus.shipped import PAPER_AXIS
 
 NAME = "busload"
 HELP = "bus load of the PDO layout (SYNC + TPDO1 + TPDO2 + RPDO1 per axis)"

@@ -4,16 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from plant_sim.axis import AxisConfig, load_axis
-from plant_sim.model import AxisPlant
 from regulator import RegulatorConfig
 from regulator.errors import RegulatorError
 from virtual_bus import cli
+from virtual_bus.formats.axis import AxisConfig, load_axis
 
-from ..params import BridgeParams
-
-ROOT = Path(__file__).resolve().parents[2]
-PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
 PROG = "python -m bridge"
 
 
@@ -25,17 +20,6 @@ def regulated_axis(path: Path) -> AxisConfig:
         RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
     except RegulatorError as exc:
         raise cli.UsageError(f"{path}: the regulator cannot run on this axis: {exc}") from None
-    return axis
-
-
-def simulated_axis_file(path: Path) -> AxisConfig:
-    """:func:`regulated_axis` for the commands that also simulate the axis (demo, bench):
-    the bridge's scaling limits and the physics' limits (substeps) are checked too, in one
-    line before anything runs."""
-    axis = regulated_axis(path)
-    reg = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
-    BridgeParams.for_axis(axis, reg)
-    AxisPlant(axis)
     return axis
 
 

@@ -1,7 +1,7 @@
 """``python -m bridge host-latency``: the host's wake-up latency floor (bridge/host_latency.py).
 
 Runs ``cyclictest`` (rt-tests) with the bench's real-time settings, so its figures sit beside
-``bridge bench``'s: a deadline cyclictest misses, any loop at that rate misses on this host.
+``hil bench``'s: a deadline cyclictest misses, any loop at that rate misses on this host.
 JSON keys (``--json``): ``host_latency.latency_us_median/p99/max``, ``late_cycles``,
 ``over_500us``, ``preempt_rt``, ``kernel``, ``host_steal_ms``; read by ``python3 dev.py bench``.
 """
@@ -22,7 +22,7 @@ DESCRIPTION = (
     "One SCHED_FIFO thread, memory locked, pinned to --cpu, waking at every cycle of --rate-hz "
     "for --seconds (cyclictest from rt-tests, not this project's code): how late the host "
     "wakes any real-time loop. Wake-ups one cycle or more late are deadlines every loop at "
-    "that rate misses here; compare them with bridge bench's skipped SYNCs."
+    "that rate misses here; compare them with hil bench's skipped SYNCs."
 )
 
 
@@ -44,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..bench_realtime import host_steal_s
+    from virtual_bus.realtime import host_steal_s
+
     from ..host_latency import HostLatencyError, json_doc, measure
 
     check_cpu(args.cpu)

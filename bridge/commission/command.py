@@ -34,8 +34,8 @@ import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary import datatypes as dt
 
-from plant_sim.drive.od import DEFAULT_EDS_PATH as DRIVE_EDS
 from virtual_bus import BusConfig, cli, open_bus
+from virtual_bus.shipped import DRIVE_EDS
 
 from .. import od as bridge_od
 from ..errors import CommissionInputError, NodeAccessError

@@ -2,9 +2,9 @@
 
 Prints simulated seconds per wall second for the section X scenario (both runs: ordinary and
 regulated) with the project kernel and, in the same run, with the plain
-``scipy.integrate.solve_ivp`` implementation of the same equations (plant_sim/reference.py),
+``scipy.integrate.solve_ivp`` implementation of the same equations (plant_sim/physics/reference.py),
 their ratio and the peak memory. With ``--all`` also the diagnosis and identification
-benchmarks (plant_sim/diagnose/bench.py, plant_sim/identify.py) where installed.
+benchmarks (plant_sim/diagnosis/timing.py, plant_sim/identification.py) where installed.
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ from dataclasses import asdict, is_dataclass
 from virtual_bus import cli
 from virtual_bus.progress import Progress
 
-from ..model import KernelOptions, default_substeps
-from ..reference import simulate_reference
-from ..report import LIMIT_CYCLE_VISCOUS
-from ..scenarios import SectionX, run_section_x
+from ..paper.outputs import LIMIT_CYCLE_VISCOUS
+from ..paper.scenarios import SectionX, run_section_x
+from ..physics.model import KernelOptions, default_substeps
+from ..physics.reference import simulate_reference
 from .common import add_axis_argument, regulated_axis
 
 NAME = "bench"
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     ref_s = min(args.reference_seconds, sim_s)
     refs = scenario.references(axis)
     n = round(ref_s / axis.control.position_cycle)
-    from ..simulate import References
+    from ..physics.simulate import References
 
     part = References(refs.position[:n], refs.speed[:n], refs.disturbance_nm[:n])
     progress.stage(f"solve_ivp reference: {ref_s:g} s of section X")
@@ -116,8 +116,8 @@ def run(args: argparse.Namespace) -> int:
     results["kernel_options"] = str(KernelOptions())
     if args.all:
         for module, func in (
-            ("plant_sim.identify", "bench_identify"),
-            ("plant_sim.diagnose.bench", "bench_diagnose"),
+            ("plant_sim.identification", "bench_identify"),
+            ("plant_sim.diagnosis.timing", "bench_diagnose"),
         ):
             try:
                 bench = getattr(importlib.import_module(module), func)

@@ -11,8 +11,8 @@ from pathlib import Path
 
 from regulator import RegulatorConfig
 from regulator.errors import RegulatorError
+from virtual_bus.formats.axis import AxisConfig, load_axis
 
-from ..axis import AxisConfig, load_axis
 from ..errors import ScenarioError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -26,7 +26,7 @@ def add_axis_argument(parser: argparse.ArgumentParser, default: Path | None = PA
         default=default,
         required=default is None,
         metavar="AXIS.toml",
-        help="axis file (shared/spec/axis-file.md)"
+        help="axis file (docs/axis-file.md)"
         + (f"; default {default.relative_to(ROOT)}" if default else ""),
     )
 

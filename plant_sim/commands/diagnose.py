@@ -12,15 +12,15 @@ import argparse
 import warnings
 
 from virtual_bus import cli
+from virtual_bus.formats.axis import load_axis
+from virtual_bus.formats.errors import TraceWarning
+from virtual_bus.formats.trace import read_trace
 from virtual_bus.progress import Progress
 
-from ..axis import load_axis
-from ..diagnose.effects import Effect
-from ..diagnose.engine import DiagnosisOptions, diagnose
-from ..diagnose.replay import prepare_replay
-from ..diagnose.report import REPORT_FILES, write_report
-from ..errors import TraceWarning
-from ..trace import check_time_base, read_trace
+from ..diagnosis.effects import Effect
+from ..diagnosis.engine import DiagnosisOptions, diagnose
+from ..diagnosis.replay import prepare_replay
+from ..diagnosis.report import REPORT_FILES, write_report
 from .common import plain_warnings
 
 NAME = "diagnose"
@@ -87,15 +87,12 @@ def run(args: argparse.Namespace) -> int:
     )
     out = args.out
     axis = load_axis(args.axis)
-    cycle = axis.control.position_cycle
     with plain_warnings():
         recording = read_trace(args.recording)
         validation = [read_trace(v) for v in args.validate or ()]
         # check that axis and recordings fit together before any long work
-        check_time_base(recording, cycle, str(args.recording))
         prepare_replay(recording, axis, source=str(args.recording))
         for path, trace in zip(args.validate or (), validation, strict=True):
-            check_time_base(trace, cycle, str(path))
             prepare_replay(trace, axis, source=str(path))
     progress = Progress(f"plant_sim {NAME}", quiet=args.quiet or args.no_progress)
     with progress.bar(None, "diagnose", unit="sim") as bar, warnings.catch_warnings():

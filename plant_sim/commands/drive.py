@@ -28,9 +28,9 @@ from types import FrameType
 
 from virtual_bus import BusConfig, VirtualBusError, cli, open_bus
 from virtual_bus.config import CIA301_BITRATES, DEFAULT_BITRATE
+from virtual_bus.formats.axis import load_axis
 from virtual_bus.realtime import add_realtime_options, realtime_options
 
-from ..axis import load_axis
 from ..drive.config import DriveConfig, TimeMode
 from ..drive.drive import SimulatedDrive
 from ..drive.errors import DriveConfigError

@@ -1,8 +1,8 @@
 """``python -m plant_sim emps --out DIR [MAT ...]``: EMPS recordings -> servo trace files.
 
 Converts the EMPS .mat files (MATLAB v5; default: the estimation and validation recordings
-of ``shared/data/emps``) to ``DIR/<stem>.csv`` (shared/spec/trace-file.md; columns and
-timing: docs/emps.md, :mod:`plant_sim.emps`).
+of ``shared/data/emps``) to ``DIR/<stem>.csv`` (docs/trace-file.md; columns and
+timing: docs/emps.md, :mod:`plant_sim.datasets.emps`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 
 from virtual_bus import cli
 
-from ..emps import (
+from ..datasets.emps import (
     DATA_DIR,
     ESTIMATION_FILE,
     VALIDATION_FILE,

@@ -1,7 +1,7 @@
 """``python -m plant_sim force_error --axis AXIS.toml TRACE.csv ...``: relative force error.
 
 100·||F_meas − F_sim||/||F_meas|| (percent) of an axis file simulated in the loop of each
-recording (:mod:`plant_sim.force_error`, docs/emps.md).
+recording (:mod:`plant_sim.datasets.force_error`, docs/emps.md).
 """
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from virtual_bus.formats.axis import load_axis
+from virtual_bus.formats.trace import check_time_base, read_trace
 from virtual_bus.progress import Progress
 
-from ..axis import load_axis
-from ..force_error import relative_force_error
-from ..trace import check_time_base, read_trace
+from ..datasets.force_error import relative_force_error
 from .common import plain_warnings
 
 NAME = "force_error"

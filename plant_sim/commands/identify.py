@@ -1,7 +1,7 @@
 """``python -m plant_sim identify RECORDING.csv --axis AXIS.toml``: section IX identification.
 
 Finds the unknown load mass and friction (Coulomb, viscous) of an axis from a servo trace by
-Nelder-Mead on the closed-loop simulation error (:mod:`plant_sim.identify`). Prints a JSON
+Nelder-Mead on the closed-loop simulation error (:mod:`plant_sim.identification`). Prints a JSON
 summary; ``--out FILE`` writes the identified axis file, ``--json FILE`` the summary.
 """
 
@@ -12,13 +12,13 @@ import json
 from pathlib import Path
 
 from virtual_bus import cli
+from virtual_bus.formats.axis import dump_axis
+from virtual_bus.formats.trace import check_time_base, read_trace
 from virtual_bus.progress import Progress
 
-from ..axis import dump_axis
 from ..errors import ScenarioError
-from ..identify import SECTION_IX_PARAMETERS, IdentifyOptions, identify
-from ..model import KernelOptions
-from ..trace import check_time_base, read_trace
+from ..identification import SECTION_IX_PARAMETERS, IdentifyOptions, identify
+from ..physics.model import KernelOptions
 from .common import add_axis_argument, plain_warnings, read_axis
 
 NAME = "identify"

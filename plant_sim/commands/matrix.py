@@ -1,7 +1,7 @@
 """``python -m plant_sim matrix [--plant kernel|independent] [--seed 2] [--out DIR] ...``.
 
-Runs the diagnosis on the concealed test set (:func:`plant_sim.diagnose.synthetic.test_set`)
-and prints the markdown tables of :mod:`plant_sim.diagnose.matrix` (confusion matrix,
+Runs the diagnosis on the concealed test set (:func:`plant_sim.diagnosis.synthetic.test_set`)
+and prints the markdown tables of :mod:`plant_sim.diagnosis.matrix` (confusion matrix,
 per-case results, timings). The full set takes several minutes (one diagnosis per case).
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 from virtual_bus import cli
 from virtual_bus.progress import Progress
 
-from ..diagnose.matrix import (
+from ..diagnosis.matrix import (
     PLANTS,
     CaseResult,
     cases_markdown,
@@ -23,7 +23,7 @@ from ..diagnose.matrix import (
     load_plant,
     run_matrix,
 )
-from ..diagnose.synthetic import test_set
+from ..diagnosis.synthetic import test_set
 
 NAME = "matrix"
 HELP = "confusion matrix of the diagnosis on the concealed test set (several minutes)"

@@ -23,10 +23,10 @@ from virtual_bus import cli
 from virtual_bus.progress import Progress
 
 from ..errors import FleetMapError, PlantSimError, SchedulerError
-from ..monitor.demo_fleet import FleetSpec, generate
-from ..monitor.fleet import Limits
-from ..monitor.job import confusion, confusion_markdown, monitor
-from ..monitor.sources import discover, load_axis_map
+from ..fleet.demo_fleet import FleetSpec, generate
+from ..fleet.job import confusion, confusion_markdown, monitor
+from ..fleet.ranking import Limits
+from ..fleet.sources import discover, load_axis_map
 
 NAME = "monitor"
 HELP = "condition monitoring of a fleet: vibration episodes, eq. 13 verdicts, backlash trends"

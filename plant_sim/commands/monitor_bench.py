@@ -25,15 +25,15 @@ from pathlib import Path
 
 import numpy as np
 
+from virtual_bus.formats.axis import dump_axis, load_axis
+from virtual_bus.formats.trace import Trace
 from virtual_bus.progress import Progress
 
-from ..axis import dump_axis, load_axis
-from ..monitor.analyse import analyse
-from ..monitor.demo_fleet import PAPER_AXIS, TRACE_COLUMNS, simulate_recording
-from ..monitor.job import monitor
-from ..monitor.sources import RecordingKind, Source, discover
-from ..simulate import References, simulate
-from ..trace import Trace
+from ..fleet.analyse import analyse
+from ..fleet.demo_fleet import PAPER_AXIS, TRACE_COLUMNS, simulate_recording
+from ..fleet.job import monitor
+from ..fleet.sources import RecordingKind, Source, discover
+from ..physics.simulate import References, simulate
 
 NAME = "monitor-bench"
 HELP = "fleet monitor throughput (recordings/min at 100..10,000 recordings) and memory"
@@ -111,8 +111,8 @@ def _peak_rss_mb(analysis: Source) -> float:
 
     code = (
         "import resource, sys; from pathlib import Path\n"
-        "from plant_sim.monitor.analyse import analyse\n"
-        "from plant_sim.monitor.sources import Source, RecordingKind\n"
+        "from plant_sim.fleet.analyse import analyse\n"
+        "from plant_sim.fleet.sources import Source, RecordingKind\n"
         f"r = analyse(Source(Path({str(analysis.path)!r}), RecordingKind.TRACE, 'M', 'X', None,"
         f" Path({str(analysis.axis_file)!r})))\n"
         "assert r.ok, r.error\n"

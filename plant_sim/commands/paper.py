@@ -4,7 +4,7 @@ Runs the axis file (default: the paper's axis) with the ordinary control and wit
 regulator. With the paper's own friction (viscous 57.3 N·m per m/s) the axis shows no
 sustained limit cycle after the disturbance (docs/paper_reproduction.md explains why); the
 command then also runs the same axis with the viscous friction lowered to
-``plant_sim.report.LIMIT_CYCLE_VISCOUS`` — the physical value that makes section X's result
+``plant_sim.paper.outputs.LIMIT_CYCLE_VISCOUS`` — the physical value that makes section X's result
 appear — and draws the figures from that variant, saying so in the figures, on the terminal
 and in summary.json (which holds both).
 """
@@ -15,18 +15,18 @@ import argparse
 import json
 
 from virtual_bus import cli
+from virtual_bus.formats.axis import AxisConfig
+from virtual_bus.formats.trace import Trace
 from virtual_bus.progress import Progress
 
-from ..axis import AxisConfig
-from ..report import (
+from ..paper.outputs import (
     files_line,
     limit_cycle_variant,
     summarize,
     write_as_given,
     write_paper_outputs,
 )
-from ..scenarios import SectionX, run_section_x
-from ..trace import Trace
+from ..paper.scenarios import SectionX, run_section_x
 from .common import add_axis_argument, regulated_axis
 
 NAME = "paper"

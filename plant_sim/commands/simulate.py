@@ -12,11 +12,11 @@ from __future__ import annotations
 import argparse
 
 from virtual_bus import cli
+from virtual_bus.formats.axis import load_axis
+from virtual_bus.formats.trace import read_trace
 
-from ..axis import load_axis
-from ..diagnose.engine import signal_fits
-from ..diagnose.replay import like_recording, prepare_replay, replay
-from ..trace import check_time_base, read_trace
+from ..diagnosis.engine import signal_fits
+from ..diagnosis.replay import like_recording, prepare_replay, replay
 from .common import plain_warnings
 
 NAME = "simulate"
@@ -44,7 +44,6 @@ def run(args: argparse.Namespace) -> int:
     axis = load_axis(args.axis)
     with plain_warnings():
         recording = read_trace(args.like)
-        check_time_base(recording, axis.control.position_cycle, str(args.like))
         inp = prepare_replay(recording, axis, source=str(args.like))
     simulated = replay(axis, inp)
     like_recording(inp, simulated).to_csv(out)

@@ -3,7 +3,7 @@
 Tests the paper's claims (section VI, eq. 12-13): the limit-cycle frequency lies in the band
 k_v/4..k_v, is proportional to k_v, and does not depend on the backlash δ. Every cell runs
 section X with the ordinary control and measures the dominant frequency of the following
-error after the disturbance (plant_sim.report.summarize). Writes sweep.csv, sweep.md (the
+error after the disturbance (plant_sim.paper.outputs.summarize). Writes sweep.csv, sweep.md (the
 table and the verdicts), sweep.png and sweep.json.
 """
 
@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from virtual_bus import cli
+from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.progress import Progress, silent
 
-from ..axis import AxisConfig
-from ..report import LIMIT_CYCLE_VISCOUS, summarize
-from ..scenarios import SectionX, run_section_x
+from ..paper.outputs import LIMIT_CYCLE_VISCOUS, summarize
+from ..paper.scenarios import SectionX, run_section_x
 from .common import add_axis_argument, read_axis
 
 NAME = "sweep"

@@ -1,7 +1,7 @@
 """``python -m plant_sim xl330 --out DIR [LOG ...]``: BAM XL330 logs -> traces + axis files.
 
 Converts raw BAM XL330 pendulum logs (JSON) to ``DIR/kp<kp>_<trajectory>.csv``
-(trace-file.md; columns: docs/xl330.md, :mod:`plant_sim.xl330`) and writes BAM's published
+(trace-file.md; columns: docs/xl330.md, :mod:`plant_sim.datasets.xl330`) and writes BAM's published
 model and the diagnosis' nominal model per Position P Gain as axis files. Without LOG
 arguments every ``*.json`` in the data directory (``$XL330_DATA`` or shared/data/bam_xl330)
 is imported, and logs in which the torque is switched off (``lift_and_drop``) are skipped
@@ -16,7 +16,7 @@ from pathlib import Path
 
 from virtual_bus import cli
 
-from ..xl330 import (
+from ..datasets.xl330 import (
     DATA_DIR,
     KP_DIVISOR,
     TorqueOffError,

@@ -39,12 +39,12 @@ import canopen
 import numpy as np
 from canopen.network import NodeScanner
 
-from plant_sim.axis import AxisConfig
-from plant_sim.model import AxisPlant
 from virtual_bus.contract import NMT_COB_ID, NMT_LENGTH, SDO_LENGTH, SdoAbort
+from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.frame_guard import FrameFault, FrameGuard
 from virtual_bus.framing import FramePort, OutFrame, frame_port
 
+from ..physics.model import AxisPlant
 from . import od as O
 from .cia402 import State402
 from .config import DriveConfig, TimeMode

@@ -32,7 +32,6 @@ from canopen import objectdictionary as cod
 from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo import SdoAbortedError
 
-from plant_sim.axis import AxisKind
 from virtual_bus.contract import INT16_MAX as INT16_MAX
 from virtual_bus.contract import INT16_MIN as INT16_MIN
 from virtual_bus.contract import INT32_MAX as INT32_MAX
@@ -46,6 +45,8 @@ from virtual_bus.contract import (
     SdoAbort,
 )
 from virtual_bus.contract import MODE_CSV as MODE_CSV
+from virtual_bus.formats.axis import AxisKind
+from virtual_bus.shipped import DRIVE_EDS
 
 from .errors import DriveEdsError, DriveSdoAbort
 
@@ -236,7 +237,7 @@ def _known_objects() -> dict[ObjectKey, ObjectSpec]:
 KNOWN_OBJECTS: dict[ObjectKey, ObjectSpec] = _known_objects()
 
 #: Default EDS of the drive.
-DEFAULT_EDS_PATH = Path(__file__).resolve().parents[2] / "config" / "drive.eds"
+DEFAULT_EDS_PATH = DRIVE_EDS
 
 
 def iter_variables(od: ObjectDictionary) -> Iterator[ODVariable]:
@@ -421,7 +422,7 @@ class ObjectTable:
         # LocalNode hands a plain variable to any sub-index, and canopen's ODArray makes up
         # members for sub-indices the EDS does not declare: only declared ones exist here.
         if (index, subindex) not in self._vars:
-            raise SdoAbortedError(0x06090011)
+            raise SdoAbortedError(SdoAbort.NO_SUBINDEX)
         return (index, subindex)
 
     def sdo_read(self, index: int, subindex: int, od: ODVariable) -> int | None:

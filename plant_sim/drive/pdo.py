@@ -41,7 +41,7 @@ from virtual_bus.contract import CAN_ID_MASK as CAN_ID_MASK
 from virtual_bus.contract import COB_ID_EXTENDED as COB_ID_EXTENDED
 from virtual_bus.contract import COB_ID_INVALID as COB_ID_INVALID
 from virtual_bus.contract import COB_ID_NO_RTR as COB_ID_NO_RTR
-from virtual_bus.contract import SdoAbort, split_mapping_entry
+from virtual_bus.contract import SdoAbort, restricted_cob_id, split_mapping_entry
 
 from .errors import DriveSdoAbort
 from .od import (
@@ -73,18 +73,6 @@ class Subscriber(Protocol):
 class PdoKind(Enum):
     RECEIVE = "RPDO"
     TRANSMIT = "TPDO"
-
-
-def restricted_cob_id(can_id: int) -> bool:
-    """CiA 301 restricted COB-IDs (NMT, SYNC/EMCY, TIME, SDO, NMT error control, LSS)."""
-    return (
-        can_id <= 0x07F
-        or 0x101 <= can_id <= 0x180
-        or 0x581 <= can_id <= 0x5FF
-        or 0x601 <= can_id <= 0x67F
-        or 0x6E0 <= can_id <= 0x6FF
-        or 0x701 <= can_id <= 0x7FF
-    )
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import can
 
-from plant_sim.axis import AxisConfig
+from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 from .cia402 import State402

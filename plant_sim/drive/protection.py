@@ -30,7 +30,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from plant_sim.model import AxisPlant
+from ..physics.model import AxisPlant
 
 EMCY_NO_ERROR = 0x0000
 EMCY_SENSOR = 0x7300

@@ -28,10 +28,10 @@ import math
 
 import numpy as np
 
-from plant_sim.axis import AxisConfig, AxisKind
-from plant_sim.model import AxisPlant
 from virtual_bus.contract import SdoAbort
+from virtual_bus.formats.axis import AxisConfig, AxisKind
 
+from ..physics.model import AxisPlant
 from . import od as O
 from .cia402 import (
     SW_FOLLOWS_COMMAND,

@@ -1,5 +1,5 @@
 """An independent test plant: the servo axis of an axis file, written apart from
-``plant_sim/kernel.py`` (neither imported nor copied) with other modelling choices:
+``plant_sim/physics/kernel.py`` (neither imported nor copied) with other modelling choices:
 
 ======================  =============================================  ==========================
 aspect                  plant_sim kernel                               independent plant
@@ -24,9 +24,10 @@ sensor time offset      history per speed cycle                        history p
 ======================  =============================================  ==========================
 
 :mod:`.recording` turns it into noisy recordings with coloured noise for the concealed-effect
-matrix. Trace files are written with :class:`plant_sim.trace.Trace` (the FILE format only).
+matrix. Trace files are written with :class:`virtual_bus.formats.trace.Trace` (the FILE format
+only).
 """
 
-from .plant import COLUMNS, PlantOptions, parameters, simulate
+from tests.independent_plant.plant import COLUMNS, PlantOptions, parameters, simulate
 
 __all__ = ["COLUMNS", "PlantOptions", "parameters", "simulate"]

@@ -1,6 +1,6 @@
 """Compiled core of the independent test plant: RK4 on smooth physics, sampled controllers.
 
-Written apart from ``plant_sim/kernel.py`` with other modelling choices where reality
+Written apart from ``plant_sim/physics/kernel.py`` with other modelling choices where reality
 allows one (see the package docstring). Everything is in load coordinates for the load and
 motor coordinates for the motor; forces on the load in N (N·m for a rotary axis).
 

@@ -1,7 +1,7 @@
 """The independent test plant as a function: axis file + references -> trace.
 
-Reads the axis file through :mod:`plant_sim.axis` (the FORMAT is shared) and nothing else of
-plant_sim's physics: the equations, the integrator, the friction and contact laws, the
+Reads the axis file through :mod:`virtual_bus.formats.axis` (the FORMAT is shared) and nothing
+else of plant_sim's physics: the equations, the integrator, the friction and contact laws, the
 sensors and the controllers are this package's own (see the package docstring).
 """
 
@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plant_sim.axis import AxisConfig, AxisKind, PositionFeedback
-from plant_sim.trace import Trace
+from virtual_bus.formats.axis import AxisConfig, AxisKind, PositionFeedback
+from virtual_bus.formats.trace import Trace
 
 from . import core as C
 

@@ -1,6 +1,6 @@
 """Recordings of the concealed test set made on the independent plant.
 
-Same cases as :func:`plant_sim.diagnose.synthetic.test_set` (families, effects, magnitudes,
+Same cases as :func:`plant_sim.diagnosis.synthetic.test_set` (families, effects, magnitudes,
 nominal files with the concealed effect's keys absent and the uncertain parameters 5–10 %
 off), but the hidden truth runs on this package's plant and the noise is its own:
 
@@ -20,8 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal as sps
 
-from plant_sim.axis import AxisConfig
-from plant_sim.diagnose.synthetic import (
+from plant_sim.diagnosis.synthetic import (
     DECIMATION,
     FAMILIES,
     Case,
@@ -31,8 +30,9 @@ from plant_sim.diagnose.synthetic import (
     recorded_columns,
     reference_profile,
 )
-from plant_sim.simulate import References
-from plant_sim.trace import Trace
+from plant_sim.physics.simulate import References
+from virtual_bus.formats.axis import AxisConfig
+from virtual_bus.formats.trace import Trace
 
 from .plant import PlantOptions, simulate
 

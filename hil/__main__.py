@@ -1,0 +1,36 @@
+"""``python -m hil COMMAND``: the bridge against the simulated drive (demo, bench).
+
+Each command is a module under :mod:`hil.commands` run by :mod:`virtual_bus.cli`, with the
+same failures as ``python -m bridge`` (one line; 2 for bad input, 1 for a failing drive or
+bus) plus the simulator's input errors.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+
+from bridge.__main__ import FAILURES as BRIDGE_FAILURES
+from bridge.__main__ import quiet_sdo_client_logging
+from plant_sim.__main__ import SIM_MODULES
+from plant_sim.errors import PlantSimError
+from virtual_bus import cli
+
+PROG = "python -m hil"
+COMMANDS = ("demo", "bench")
+DESCRIPTION = (
+    "Hardware in the loop without hardware: the bridge (python -m bridge) closing the loop "
+    "over CANopen against the simulated CiA 402 drive (python -m plant_sim drive)."
+)
+FAILURES = (*BRIDGE_FAILURES, cli.Failure((PlantSimError,)))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    if (code := cli.missing_extra(PROG, SIM_MODULES, "sim")) is not None:
+        return code
+    quiet_sdo_client_logging()
+    return cli.main(PROG, DESCRIPTION, cli.load_commands("hil", COMMANDS), argv, FAILURES)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

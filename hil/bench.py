@@ -1,0 +1,156 @@
+"""``python -m hil bench``: throughput in lockstep, latency in real time.
+
+Lockstep: the paper's section X (regulated) through the full stack -- the bridge's loop,
+python-can's virtual bus (:class:`virtual_bus.inprocess.InProcessBus`), the simulated drive
+with its PDO engine and physics (receiving in the loop's thread) -- once without recording
+and once with the trace file and the candump log; control cycles per second of wall time and
+CPU time per cycle.
+
+Real time (:mod:`hil.bench_realtime`): SYNC from the wall clock at ``rate_hz`` for
+``seconds`` with the simulated drive in its own process (as root: udp_multicast in a private
+network namespace) or in a thread; latency, SYNC jitter, histograms, skipped SYNCs, cycles
+without a complete TPDO set, CPU time per cycle.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from bridge.cycle import BridgeState
+from bridge.params import BridgeParams
+from plant_sim.paper.scenarios import SectionX
+from regulator import RegulatorConfig
+from virtual_bus.errors import RealTimeRefused
+from virtual_bus.formats.axis import AxisConfig
+from virtual_bus.realtime import RealTimeOptions
+
+from .bench_realtime import DrivePlacement, can_run_process_drive, realtime_run
+from .harness import play_references, simulated_axis
+
+
+def _params(axis: AxisConfig) -> BridgeParams:
+    reg = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
+    return BridgeParams.for_axis(axis, reg)
+
+
+def lockstep_run(axis: AxisConfig, cycles: int, record: bool) -> dict[str, float]:
+    """Section X (first ``cycles`` cycles; feed until 6 s) over the virtual bus, lockstep."""
+    cycle_s = axis.control.position_cycle
+    end_s = cycles * cycle_s
+    scenario = SectionX(end_s=end_s, stop_s=min(SectionX.stop_s, end_s))
+    refs = scenario.references(axis)
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        simulated_axis(
+            axis,
+            _params(axis),
+            trace_path=Path(tmp) / "trace.csv" if record else None,
+            keep_trace=False,
+            disturbance=refs.disturbance_nm if record else None,
+            bus_log_path=Path(tmp) / "bus.log" if record else None,
+        ) as sim,
+    ):
+        cpu0 = time.process_time()
+        run = play_references(sim, refs)
+        cpu = time.process_time() - cpu0
+    return {
+        "cycles": run.cycles,
+        "wall_s": run.wall_s,
+        "cycles_per_s": run.cycles / run.wall_s,
+        "cpu_us_per_cycle": 1e6 * cpu / run.cycles,
+        "missed_tpdos": run.counters.missed,
+        "stopped": run.state is BridgeState.STOPPED,
+    }
+
+
+def _placement(drive: str) -> DrivePlacement:
+    why = can_run_process_drive()
+    if drive == "thread":
+        return DrivePlacement.THREAD
+    if why is None:
+        print(
+            "bench: the simulated drive runs as its own process (udp_multicast in a private "
+            "network namespace, removed after the run)"
+        )
+        return DrivePlacement.PROCESS
+    if drive == "process":
+        raise RealTimeRefused(f"--drive process: {why}", setting="drive")
+    print(
+        f"bench: {why}; the simulated drive runs in this process instead (its physics and "
+        "threads share the interpreter: the figures are not the bridge's alone)"
+    )
+    return DrivePlacement.THREAD
+
+
+def _other_cpu(cpu: int | None) -> int | None:
+    if cpu is None:
+        return None
+    others = sorted(set(os.sched_getaffinity(0)) - {cpu})
+    return others[0] if others else None
+
+
+def run_bench(
+    axis: AxisConfig,
+    *,
+    cycles: int,
+    seconds: float | None,
+    lockstep: bool = True,
+    json_path: Path | None = None,
+    rate_hz: float | None = None,
+    rt: RealTimeOptions | None = None,
+    drive: str = "auto",
+    drive_cpu: int | None = None,
+) -> dict[str, object]:
+    results: dict[str, object] = {}
+    rt = rt or RealTimeOptions()
+    placement = _placement(drive) if seconds is not None else DrivePlacement.THREAD
+    if lockstep:
+        for record in (False, True):
+            key = "lockstep_recording" if record else "lockstep"
+            r = lockstep_run(axis, cycles, record)
+            results[key] = r
+            print(
+                f"{key}: {r['cycles']} cycles in {r['wall_s']:.3f} s = "
+                f"{r['cycles_per_s']:.0f} cycles/s (paper's 6 s at 1 ms in "
+                f"{6000 / r['cycles_per_s']:.2f} s), CPU {r['cpu_us_per_cycle']:.0f} µs/cycle, "
+                f"missed TPDOs {r['missed_tpdos']}"
+            )
+    if seconds is not None:
+        if drive_cpu is None and placement is DrivePlacement.PROCESS:
+            drive_cpu = _other_cpu(rt.cpu)
+        load = os.getloadavg()
+        r = realtime_run(
+            axis, seconds, rate_hz=rate_hz, rt=rt, placement=placement, drive_cpu=drive_cpu
+        )
+        r["load_average_1_5_15"] = [round(x, 2) for x in load]
+        results["realtime"] = r
+        print(
+            f"realtime {r['rate_hz']:.0f} Hz for {r['seconds']:.1f} s, drive: {r['drive']}, "
+            f"options: {r['realtime_options']}, load average before {load[0]:.2f}: "
+            f"SYNC-to-set-point latency median {r['latency_us_median']:.0f} µs, p99 "
+            f"{r['latency_us_p99']:.0f} µs, max {r['latency_us_max']:.0f} µs (bridge's share "
+            f"median {r['compute_us_median']:.0f} µs, p99 {r['compute_us_p99']:.0f} µs); SYNC "
+            f"late median {r['sync_late_us_median']:.0f} µs, p99 {r['sync_late_us_p99']:.0f} "
+            f"µs, max {r['sync_late_us_max']:.0f} µs; skipped SYNCs {r['skipped_syncs']} "
+            f"({r['overruns']} overruns), cycles without all TPDOs {r['missed_tpdo_cycles']}; "
+            f"loop CPU {r['cpu_us_per_cycle']:.0f} µs/cycle"
+            + (
+                f", drive process CPU {r['drive_cpu_us_per_cycle']:.0f} µs/cycle"
+                if "drive_cpu_us_per_cycle" in r
+                else ""
+            )
+        )
+        print(f"latency histogram (µs): {r['latency_histogram_us']}")
+        print(
+            f"host alone (a clock-reading thread, same options, {r['host_gaps_over_50us']} gaps "
+            f"> 50 µs in 2 s, longest {r['host_gap_us_max']:.0f} µs): the floor under the "
+            "loop's maximum; CPU time the hypervisor stole during the run (ms): "
+            f"{r['host_steal_ms']}"
+        )
+    if json_path is not None:
+        json_path.write_text(json.dumps(results, indent=2) + "\n")
+    return results

@@ -1,0 +1,338 @@
+"""The real-time part of ``python -m hil bench``: the bridge alone, the drive elsewhere.
+
+SYNC from the wall clock at ``rate_hz`` for ``seconds``, the axis moving ±20 mm back and
+forth. Where the simulated drive runs (:class:`DrivePlacement`):
+
+* ``PROCESS`` (default, needs root): the drive is its own process; both share a python-can
+  ``udp_multicast`` bus inside a private network namespace created for the run and removed
+  after it (:mod:`virtual_bus.netns`; never on the host's interfaces): ``python -m plant_sim
+  drive`` in the namespace, the bench's own thread moved into it (setns) for its bus. The
+  drive process gets the loop's real-time options (:func:`drive_options`: one SCHED_FIFO
+  priority lower, on ``drive_cpu``). The figures are the bridge's: its loop does not share
+  an interpreter with the drive's physics.
+* ``THREAD``: the drive in the bridge's process on python-can's virtual bus (what ran before;
+  the drive's Python work and threads compete with the loop for the GIL).
+
+Figures (:func:`bridge.loopstats.summary`): SYNC -> set point latency (it includes the drive's
+answer), the bridge's own share (both TPDOs in -> RPDO sent), SYNC lateness against its slot
+and its jitter, histograms, skipped SYNCs, overruns, cycles without all TPDOs, CPU time of the
+loop's thread and of the drive process per cycle, CPU use of both processes, and what the
+host took: the gaps of a clock-reading thread before the run (:func:`host_floor`) and the
+hypervisor's steal time per CPU during it (:func:`virtual_bus.realtime.steal_s`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import dataclasses
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from enum import Enum
+from pathlib import Path
+
+import can
+
+from bridge.cycle import BridgeState
+from bridge.errors import BridgeError
+from bridge.interpolator import Move
+from bridge.loopstats import Timing, summary
+from bridge.node import Bridge, BridgeConfig
+from bridge.params import BridgeParams
+from bridge.timing import RealTimePacer
+from regulator import RegulatorConfig
+from virtual_bus import BusConfig, open_bus
+from virtual_bus.contract import heartbeat_cob_id
+from virtual_bus.formats.axis import AxisConfig, dump_axis
+from virtual_bus.netns import UDP_GROUP, NetworkNamespace
+from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime, host_steal_s
+
+#: Wall time the drive process gets to boot (loading its compiled physics), s.
+DRIVE_BOOT_TIMEOUT_S = 120.0
+
+
+class DrivePlacement(Enum):
+    PROCESS = "process"
+    THREAD = "thread"
+
+
+def axis_at_rate(axis: AxisConfig, rate_hz: float | None) -> AxisConfig:
+    """``axis`` with its position cycle at ``rate_hz`` (None: as it is)."""
+    if rate_hz is None:
+        return axis
+    return axis.with_values({"control.position_cycle": 1.0 / rate_hz})
+
+
+def bench_params(axis: AxisConfig) -> BridgeParams:
+    reg = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
+    # counted, not acted on: the bench measures; 200Ah = 255 lets a bad run finish
+    return dataclasses.replace(BridgeParams.for_axis(axis, reg), pdo_loss_tolerance=255)
+
+
+CLONE_NEWNET = 0x40000000
+
+
+@contextlib.contextmanager
+def _entered(ns: NetworkNamespace) -> Iterator[None]:
+    """The calling thread in the namespace ``ns`` (setns(2)) for the block: the bridge's bus
+    socket is opened in it. The thread returns to its own namespace afterwards."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    own = os.open("/proc/thread-self/ns/net", os.O_RDONLY)
+    try:
+        target = os.open(f"/var/run/netns/{ns.name}", os.O_RDONLY)
+        try:
+            if libc.setns(target, CLONE_NEWNET) != 0:
+                errno = ctypes.get_errno()
+                raise OSError(
+                    errno, f"setns into network namespace {ns.name}: {os.strerror(errno)}"
+                )
+        finally:
+            os.close(target)
+        try:
+            yield
+        finally:
+            libc.setns(own, CLONE_NEWNET)
+    finally:
+        os.close(own)
+
+
+def _proc_cpu_s(pid: int) -> float:
+    """User + system CPU time of process ``pid`` so far (from /proc), s."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def drive_options(rt: RealTimeOptions, drive_cpu: int | None) -> list[str]:
+    """The real-time options of the drive process: the bridge's, one priority below the loop
+    (the drive answers the SYNC the loop sends), on ``drive_cpu`` instead of the loop's CPU."""
+    priority = None if rt.rt_priority is None else max(1, rt.rt_priority - 1)
+    return dataclasses.replace(rt, rt_priority=priority, cpu=drive_cpu).argv()
+
+
+def _drive_command(
+    ns: NetworkNamespace, axis_path: Path, rt: RealTimeOptions, drive_cpu: int | None
+) -> list[str]:
+    """``python -m plant_sim drive`` on udp_multicast inside ``ns`` with
+    :func:`drive_options`."""
+    return ns.command(
+        [
+            sys.executable,
+            "-m",
+            "plant_sim",
+            "drive",
+            "--interface",
+            "udp_multicast",
+            "--channel",
+            UDP_GROUP,
+            "--axis",
+            str(axis_path),
+            *drive_options(rt, drive_cpu),
+        ]
+    )
+
+
+def _wait_for_boot(bus: can.BusABC, drive_id: int, proc: subprocess.Popen[bytes]) -> None:
+    deadline = time.monotonic() + DRIVE_BOOT_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise BridgeError(f"the drive process ended at start-up (exit {proc.returncode})")
+        msg = bus.recv(0.1)
+        if (
+            msg is not None
+            and msg.arbitration_id == heartbeat_cob_id(drive_id)
+            and msg.data[:1] == b"\0"
+        ):
+            return
+    raise BridgeError(f"the drive process sent no boot-up within {DRIVE_BOOT_TIMEOUT_S:g} s")
+
+
+@contextlib.contextmanager
+def _process_drive(
+    axis: AxisConfig, rt: RealTimeOptions, drive_cpu: int | None, drive_id: int
+) -> Iterator[tuple[can.BusABC, subprocess.Popen[bytes], str]]:
+    """The drive process, the bridge's end of the bus and the name of the private network
+    namespace they share (created for the block, removed after it)."""
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        NetworkNamespace.create() as ns,
+        _entered(ns),
+    ):
+        axis_path = Path(tmp) / "axis.toml"
+        axis_path.write_text(dump_axis(axis), encoding="utf-8")
+        bus = open_bus(BusConfig(interface="udp_multicast", channel=UDP_GROUP))
+        try:
+            proc = subprocess.Popen(
+                _drive_command(ns, axis_path, rt, drive_cpu), stdout=subprocess.DEVNULL
+            )
+            try:
+                _wait_for_boot(bus, drive_id, proc)
+                yield bus, proc, ns.name
+            finally:
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(10.0)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+        finally:
+            bus.shutdown()
+
+
+def _queue_moves(bridge: Bridge, params: BridgeParams, seconds: float) -> None:
+    feed = params.feed
+    move_s = 0.02 / feed + 0.1 + 0.1  # travel, acceleration ramps, dwell
+    for i in range(math.ceil(seconds / move_s) + 2):
+        bridge.controller.queue_move(
+            Move(0.02 if i % 2 == 0 else 0.0, feed, accel=10 * feed, dwell_s=0.1)
+        )
+
+
+#: The host's own floor is measured this long before the run, s.
+HOST_FLOOR_S = 2.0
+#: A gap in the clock-reading spin longer than this counts as the host taking the CPU, s.
+HOST_GAP_S = 50e-6
+
+
+def host_floor(seconds: float = HOST_FLOOR_S) -> dict[str, float]:
+    """What the host alone does to a thread that only reads the clock (with the real-time
+    options already applied), 0.6 ms of every millisecond, sleeping the rest (like the loop;
+    a thread at real-time priority that never sleeps is throttled by the kernel): gaps longer
+    than :data:`HOST_GAP_S` between two readings, their number and the longest. No bridge
+    involved -- a latency maximum of the loop near the longest gap is the host's (interrupts,
+    other tasks, the hypervisor), not the loop's."""
+    wall = time.monotonic
+    end = wall() + seconds
+    longest = 0.0
+    count = 0
+    while wall() < end:
+        last = wall()
+        spin_end = last + 0.0006
+        while last < spin_end:
+            now = wall()
+            gap = now - last
+            if gap > HOST_GAP_S:
+                count += 1
+                longest = max(longest, gap)
+            last = now
+        time.sleep(0.0003)
+    return {"host_gaps_over_50us": count, "host_gap_us_max": longest * 1e6}
+
+
+def _measure(bridge: Bridge, cycles: int, rt: RealTimeOptions) -> dict[str, float]:
+    applied = apply_realtime(rt)
+    for line in applied:
+        print(f"bench: {line}")
+    floor = host_floor()
+    steal0 = host_steal_s()
+    wall0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
+    n = bridge.run(until=lambda b: b.cycle_index >= cycles)
+    wall = time.perf_counter() - wall0
+    cpu, thread = time.process_time() - cpu0, time.thread_time() - thread0
+    steal1 = host_steal_s()
+    return {
+        **floor,
+        "host_steal_ms": {
+            name: round(1e3 * (steal1[name] - steal0.get(name, 0.0)), 1) for name in steal1
+        },
+        "seconds": wall,
+        "cycles": n,
+        "cpu_us_per_cycle": 1e6 * thread / max(1, n),
+        "cpu_percent_of_one_core": 100.0 * cpu / wall,
+    }
+
+
+def realtime_run(
+    axis: AxisConfig,
+    seconds: float,
+    *,
+    rate_hz: float | None = None,
+    rt: RealTimeOptions | None = None,
+    placement: DrivePlacement = DrivePlacement.PROCESS,
+    drive_cpu: int | None = None,
+    spin_s: float | None = None,
+) -> dict[str, object]:
+    """One real-time run (module docstring); returns its figures. ``spin_s``: the pacer's
+    clock polling before each SYNC (None: its default)."""
+    rt = rt or RealTimeOptions()
+    axis = axis_at_rate(axis, rate_hz)
+    params = bench_params(axis)
+    cycles = round(seconds / params.cycle_s)
+    config = BridgeConfig()
+    gc_control = GcBetweenCycles() if rt.freeze_gc else None
+    result: dict[str, object] = {
+        "rate_hz": 1.0 / params.cycle_s,
+        "drive": placement.value,
+        "realtime_options": rt.describe(),
+    }
+    with contextlib.ExitStack() as stack:
+        if placement is DrivePlacement.PROCESS:
+            bus, proc, netns = stack.enter_context(
+                _process_drive(axis, rt, drive_cpu, config.drive_id)
+            )
+            drive_pid: int | None = proc.pid
+            result["bus"] = f"udp_multicast in the private network namespace {netns}"
+        else:
+            from bridge.timing import TimeMode
+
+            from .harness import simulated_axis
+
+            sim = stack.enter_context(
+                simulated_axis(
+                    axis, params, time_mode=TimeMode.REAL_TIME, keep_trace=False, keep_timing=True
+                )
+            )
+            bus, drive_pid = sim.bridge_bus, None
+            result["bus"] = "python-can virtual (drive in this process)"
+        if placement is DrivePlacement.PROCESS:
+            bridge = Bridge(
+                bus,
+                params,
+                axis.kind,
+                RealTimePacer(params.cycle_s, spin_s=spin_s),
+                config=config,
+                keep_timing=True,
+                overrun_limit=None,
+                gc_control=gc_control,
+                busy_poll=rt.busy_poll,
+            )
+            stack.callback(bridge.close)
+            bridge.start()
+        else:
+            bridge = sim.bridge
+            bridge.overrun_limit = None
+            bridge.gc_control = gc_control
+            bridge.busy_poll = rt.busy_poll
+        _queue_moves(bridge, params, seconds)
+        bridge.timing = Timing(capacity=cycles + 64)  # no array grows during the run
+        drive_cpu0 = _proc_cpu_s(drive_pid) if drive_pid is not None else 0.0
+        result.update(_measure(bridge, cycles, rt))
+        if drive_pid is not None:
+            drive_cpu_s = _proc_cpu_s(drive_pid) - drive_cpu0
+            result["drive_cpu_percent_of_one_core"] = 100.0 * drive_cpu_s / result["seconds"]  # type: ignore[operator]
+            result["drive_cpu_us_per_cycle"] = 1e6 * drive_cpu_s / max(1, cycles)
+        result["spin_us"] = bridge.pacer.spin_s * 1e6
+        result.update(summary(bridge.timing, params.cycle_s))
+        result["missed_tpdo_cycles"] = bridge.counters.missed_cycles
+        result["late_tpdos"] = bridge.counters.late
+        result["stopped"] = bridge.controller.state is BridgeState.STOPPED
+        result["stop_message"] = bridge.controller.stop_message
+        if rt.rt_priority is not None:  # back to ordinary scheduling for the tear-down
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return result
+
+
+def can_run_process_drive() -> str | None:
+    """None when the out-of-process drive can run here, else why not (one sentence)."""
+    if os.geteuid() != 0:
+        return "not root: a private network namespace for the drive process needs root"
+    try:
+        import msgpack  # noqa: F401
+    except ImportError:
+        return "python-can's udp_multicast needs msgpack (pip install msgpack)"
+    return None

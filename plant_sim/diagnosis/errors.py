@@ -1,0 +1,23 @@
+"""Exceptions of :mod:`plant_sim.diagnosis`; all derive from :class:`plant_sim.errors.PlantSimError`
+(the package's one root) and the matching builtin, so the CLI turns them into one line + exit 2."""
+
+from __future__ import annotations
+
+from ..errors import PlantSimError
+
+
+class DiagnosisInputError(PlantSimError, ValueError):
+    """An axis file and a recording do not fit together (missing column for the feedback the
+    axis closes its loop on, transmission ratio that contradicts the recording, ...).
+
+    ``column`` names the recording column concerned, ``key`` the axis-file key, when known.
+    """
+
+    def __init__(self, message: str, *, column: str | None = None, key: str | None = None) -> None:
+        super().__init__(message)
+        self.column = column
+        self.key = key
+
+
+class DiagnosisOptionError(PlantSimError, ValueError):
+    """An option of the diagnosis is outside its allowed range (message gives value and range)."""

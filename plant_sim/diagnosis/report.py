@@ -1,0 +1,261 @@
+"""Write a :class:`~plant_sim.diagnosis.engine.Diagnosis`: report.json, axis_fitted.toml,
+fit_before.csv / fit_after.csv (simulated traces with the recording's columns and time base)
+and report.png (recording vs before vs after per signal, mismatch windows shaded, residuals).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, is_dataclass
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from virtual_bus.formats.axis import dump_axis
+from virtual_bus.formats.trace import Trace
+
+from .engine import DECISION_RULE, Diagnosis
+from .fit import plain_floats
+from .parameters import key_unit, units
+
+REPORT_FILES = ("report.json", "axis_fitted.toml", "fit_before.csv", "fit_after.csv", "report.png")
+
+
+def _jsonable(value: Any) -> Any:
+    """Dataclasses, enums, numpy scalars -> JSON types; inf/NaN -> None."""
+    if is_dataclass(value) and not isinstance(value, type):
+        return {k: _jsonable(v) for k, v in asdict(value).items()}
+    if isinstance(value, Enum):
+        return value.value
+    if isinstance(value, dict):
+        return {str(_jsonable(k)): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    return value
+
+
+def report_dict(d: Diagnosis) -> dict[str, Any]:
+    """The content of report.json."""
+    rec = d.recording
+    return _jsonable(
+        {
+            "left_out": [e.value for e in d.left_out],
+            "candidates": [
+                {
+                    "effect": c.effect.value,
+                    "round": c.round,
+                    "accepted": c.accepted,
+                    "significant": c.significant,
+                    "parameters": c.parameters,
+                    "heldout": {
+                        "cost": c.heldout.cost,
+                        "n_samples": c.heldout.n_samples,
+                        "n_eff": c.heldout.n_eff,
+                        "n_free": c.heldout.n_free,
+                        "bic": c.heldout.bic,
+                        "fit": {
+                            s: {"nrmse": f.nrmse, "fit_percent": f.fit_percent}
+                            for s, f in c.heldout.fits.items()
+                        },
+                    },
+                    "information_criterion": c.heldout.bic,
+                    "improvement_percent": c.improvement_percent,
+                    "training_improvement_percent": c.training_improvement_percent,
+                    "f_statistic": c.f_statistic,
+                    "z_statistic": c.z_statistic,
+                    "p_value": c.p_value,
+                    "p_without_best_block": c.p_without_best_block,
+                    "f_p_value": c.f_p_value,
+                    "notes": c.notes,
+                    "n_simulations": c.n_simulations,
+                    "seconds": c.seconds,
+                }
+                for c in d.candidates
+            ],
+            "ambiguous": [
+                {
+                    "named": a.named.value,
+                    "alternative": a.alternative.value,
+                    "cost_ratio": a.cost_ratio,
+                    "p_value": a.p_value,
+                    "experiment": a.experiment,
+                }
+                for a in d.ambiguous
+            ],
+            "mismatch": d.mismatch,
+            "mismatch_by_condition_s": d.mismatch_by_condition,
+            "tests": {"refit": d.tests_refit, "final": d.tests_final},
+            "fit_before": d.fit_before,
+            "fit_refit": d.fit_refit,
+            "fit_after": d.fit_after,
+            "heldout": {"refit": d.heldout_refit, "final": d.heldout_final},
+            "refit": {k: {"nominal": n, "fitted": f} for k, (n, f) in d.refit_values.items()},
+            "refit_decision": d.refit_decision,
+            "suspects": [
+                {
+                    "key": x.key,
+                    "nominal": x.nominal,
+                    "fitted": x.fitted,
+                    "change_percent": x.change_percent,
+                    "uncertainty_percent": 100.0 * x.uncertainty,
+                    "on_bound": x.on_bound,
+                    "unit": key_unit(x.key, d.nominal),
+                }
+                for x in d.suspects
+            ],
+            "fitted": {
+                k: {"nominal": n, "fitted": f, "unit": key_unit(k, d.nominal)}
+                for k, (n, f) in d.fitted_values.items()
+            },
+            "heldout_cost": {
+                "nominal": d.heldout_nominal.cost,
+                "refit": d.heldout_refit.cost,
+                "final": d.heldout_final.cost,
+            },
+            "adequacy": d.adequacy,
+            "explanation": d.explanation,
+            "decision_rule": DECISION_RULE.format(
+                alpha=d.options.alpha,
+                min_improvement=100.0 * d.options.min_improvement,
+                choice_alpha=d.options.choice_alpha,
+            ),
+            "recording": {
+                "samples": len(rec),
+                "duration_s": float(rec.time[-1] - rec.time[0]),
+                "signals": list(d.fit_before),
+                "validation": d.validation,
+            },
+            "notes": d.notes,
+            "timings_s": d.timings_s,
+            "n_simulations": d.n_simulations,
+        }
+    )
+
+
+def simulated_like(recording: Trace, simulated: Trace) -> Trace:
+    """The recording's columns and time base, simulated values where the simulation has them."""
+    return Trace({n: simulated.columns.get(n, v) for n, v in recording.columns.items()})
+
+
+def axis_text(d: Diagnosis, source: str = "") -> str:
+    added = ", ".join(e.value for e in d.left_out) or "none"
+    header = [
+        "Fitted by python -m plant_sim diagnose" + (f" from {source}" if source else "") + ".",
+        f"Effects added: {added}.",
+        "Uncertain parameters re-fitted by closed-loop simulation error.",
+        *d.notes,
+    ]
+    return dump_axis(plain_floats(d.fitted), header="\n".join(header))
+
+
+def _compared(d: Diagnosis, signal: str, values: np.ndarray) -> np.ndarray:
+    ref = d.recording["position_reference"]
+    if signal == "motor_position":
+        return d.nominal.transmission_ratio * ref - values
+    if signal == "load_position":
+        return ref - values
+    return values
+
+
+def _label(d: Diagnosis, signal: str) -> tuple[str, str]:
+    """(quantity, unit) of what ``signal`` is scored on, in the axis's units."""
+    u = units(d.nominal)
+    motor_pos = "m" if d.nominal.transmission_ratio == 1.0 and u["position"] == "m" else "rad"
+    return {
+        "motor_position": ("motor following error", motor_pos),
+        "load_position": ("load following error", u["position"]),
+        "motor_speed": ("motor speed", f"{motor_pos}/s"),
+        "motor_torque": ("motor torque" if u["torque"] == "N·m" else "motor force", u["torque"]),
+    }[signal]
+
+
+def plot_report(d: Diagnosis, path: str | Path) -> None:
+    """Per signal: recording, nominal and fitted simulation (upper panel) and the residuals
+    of the nominal, the re-fitted nominal and the fitted model (lower panel); every axis
+    with its unit, mismatch windows shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    signals = list(d.fit_before)
+    t = d.recording.time
+    fig, axes = plt.subplots(
+        2 * len(signals), 1, figsize=(13, 2.8 * 2 * len(signals)), sharex=True, squeeze=False
+    )
+    axes = axes[:, 0]
+    for i, s in enumerate(signals):
+        name, unit = _label(d, s)
+        rec = _compared(d, s, d.recording[s])
+        before = _compared(d, s, d.simulated_before[s])
+        after = _compared(d, s, d.simulated_after[s])
+        refit = _compared(d, s, d.simulated_refit[s])
+        ax, axr = axes[2 * i], axes[2 * i + 1]
+        ax.plot(t, rec, lw=0.6, color="0.35", label="recording")
+        ax.plot(
+            t,
+            before,
+            lw=0.8,
+            color="tab:red",
+            label=f"nominal, fit {d.fit_before[s].fit_percent:.1f} %",
+        )
+        ax.plot(
+            t,
+            after,
+            lw=0.8,
+            color="tab:blue",
+            label=f"fitted, fit {d.fit_after[s].fit_percent:.1f} %",
+        )
+        ax.set_ylabel(f"{name}\n({unit})", fontsize=9)
+        axr.plot(t, rec - before, lw=0.4, color="tab:red", alpha=0.5, label="recording − nominal")
+        axr.plot(t, rec - refit, lw=0.5, color="tab:orange", label="recording − re-fitted nominal")
+        axr.plot(t, rec - after, lw=0.5, color="tab:blue", label="recording − fitted")
+        axr.axhline(0.0, color="k", lw=0.5)
+        axr.set_ylabel(f"residual\n({unit})", fontsize=9)
+        shaded = False
+        for m in d.mismatch:
+            if m.signal == s:
+                shaded = True
+                for a in (ax, axr):
+                    a.axvspan(m.t_start, m.t_end, color="orange", alpha=0.25, lw=0)
+        extra = [Patch(color="orange", alpha=0.25, label="mismatch window")] if shaded else []
+        for a in (ax, axr):
+            handles, _ = a.get_legend_handles_labels()
+            a.legend(
+                handles=handles + extra,
+                loc="upper left",
+                bbox_to_anchor=(1.005, 1.0),
+                fontsize=8,
+                frameon=False,
+            )
+            a.tick_params(labelsize=8)
+            a.grid(True, lw=0.3, alpha=0.5)
+    axes[-1].set_xlabel("time (s)", fontsize=9)
+    named = ", ".join(e.value for e in d.left_out) or "nothing"
+    verdict = "" if d.adequacy.adequate else " — the model class does not explain the recording"
+    fig.suptitle(f"Diagnosis: left out {named}{verdict}", fontsize=11)
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.985))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def write_report(d: Diagnosis, out_dir: str | Path, source: str = "") -> list[Path]:
+    """Write the five report files into ``out_dir`` (created if needed); returns their paths."""
+    import json
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / name for name in REPORT_FILES]
+    paths[0].write_text(json.dumps(report_dict(d), indent=2) + "\n", encoding="utf-8")
+    paths[1].write_text(axis_text(d, source), encoding="utf-8")
+    simulated_like(d.recording, d.simulated_before).to_csv(paths[2])
+    simulated_like(d.recording, d.simulated_after).to_csv(paths[3])
+    plot_report(d, paths[4])
+    return paths

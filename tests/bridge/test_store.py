@@ -1,0 +1,194 @@
+"""1010h store / 1011h restore of the bridge (CiA 301), driven by python-canopen's own SDO
+client (``RemoteNode.sdo[...]`` with the bridge's EDS): store, restart the bridge on the same
+file, read back; wrong signatures (0800 0020) change nothing; restore brings the axis file's
+defaults back at the next start; a store file the bridge would refuse stops the start.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import canopen
+import pytest
+
+from bridge.cycle import Command
+from bridge.errors import SdoAbort, StoreError
+from bridge.node import Bridge, BridgeConfig
+from bridge.params import BridgeParams
+from bridge.timing import LockstepPacer
+from tests.bridge_helpers import abort_code, sdo_tool  # tests/ helper module
+from virtual_bus.formats.axis import load_axis
+
+AXIS = load_axis("config/paper_axis.toml")
+SAVE, LOAD = 0x65766173, 0x64616F6C
+
+
+@contextlib.contextmanager
+def running_bridge(bus: can.BusABC, store: Path | None) -> Iterator[Bridge]:
+    """A bridge started (no drive), disabled, serving SDO; closed at the end (a "restart"
+    is a second block on the same bus and store file)."""
+    b = Bridge(
+        bus,
+        BridgeParams.for_axis(AXIS),
+        AXIS.kind,
+        LockstepPacer(0.001),
+        config=BridgeConfig(store_path=store),
+    )
+    b.start(configure_drive=False)
+    b.controller.command(Command.DISABLE)
+    with b.serving():
+        yield b
+    b.close()
+
+
+@pytest.fixture
+def tool(bus_pair: tuple[can.BusABC, can.BusABC]) -> Iterator[canopen.RemoteNode]:
+    with sdo_tool(bus_pair[1]) as node:
+        yield node
+
+
+def test_store_restart_and_read_back(
+    bus_pair: tuple[can.BusABC, can.BusABC], tool: canopen.RemoteNode, tmp_path: Path
+) -> None:
+    store = tmp_path / "axis.bridge-store.json"
+    sdo = tool.sdo
+    with running_bridge(bus_pair[0], store):
+        assert sdo[0x1010][1].raw == 1  # saves on command (CiA 301 bit 0)
+        assert sdo[0x1011][1].raw == 1
+        sdo["Position gain kv"].raw = 30.0
+        sdo["Software position limit"]["Max position limit"].raw = 0.25
+        sdo["Consumer heartbeat time"][1].raw = (2 << 16) | 400
+        sdo["Feed"].raw = 20_000_000
+        sdo["Regulator enable"].raw = False
+        sdo[0x1010][1].raw = SAVE
+        assert store.is_file()
+        assert [p.name for p in tmp_path.iterdir()] == [store.name]  # no temporary left
+    with running_bridge(bus_pair[0], store) as restarted:
+        assert sdo["Position gain kv"].raw == 30.0
+        assert sdo[0x2014][2].raw == pytest.approx(0.25)
+        assert sdo[0x1016][1].raw == (2 << 16) | 400
+        assert sdo["Feed"].raw == 20_000_000
+        assert sdo["Regulator enable"].raw is False
+        p = restarted.controller.params
+        assert (p.kv_per_s, p.regulator_enabled, p.heartbeat_consumer_ms) == (30.0, False, 400)
+        assert restarted.controller.regulator_config.kv == 30.0  # the regulator uses it
+        # restore defaults: effective at the next start, not now
+        sdo[0x1011][1].raw = LOAD
+        assert sdo["Position gain kv"].raw == 30.0
+        assert not store.exists()
+    with running_bridge(bus_pair[0], store):
+        assert sdo["Position gain kv"].raw == 25.0
+        assert sdo[0x2014][2].raw == 2.0
+        assert sdo["Regulator enable"].raw is True
+
+
+WRONG = [(0x1010, v) for v in (0, 1, LOAD, SAVE ^ 0x100)] + [
+    (0x1011, v) for v in (0, 1, SAVE, LOAD ^ 0x100)
+]
+
+
+@pytest.mark.parametrize(("index", "value"), WRONG, ids=[f"{i:04X}h={v:#x}" for i, v in WRONG])
+def test_wrong_signature_is_refused_and_changes_nothing(
+    bus_pair: tuple[can.BusABC, can.BusABC],
+    tool: canopen.RemoteNode,
+    tmp_path: Path,
+    index: int,
+    value: int,
+) -> None:
+    store = tmp_path / "store.json"
+    with running_bridge(bus_pair[0], store):
+        tool.sdo["Position gain kv"].raw = 30.0
+        tool.sdo[0x1010][1].raw = SAVE
+        before = store.read_bytes()
+        tool.sdo["Position gain kv"].raw = 20.0
+        code = abort_code(lambda: tool.sdo.download(index, 1, struct.pack("<I", value)))
+        assert code == SdoAbort.NOT_STORED == 0x0800_0020
+        assert store.read_bytes() == before
+
+
+def test_without_a_store_file_the_bridge_says_so(
+    bus_pair: tuple[can.BusABC, can.BusABC], tool: canopen.RemoteNode
+) -> None:
+    with running_bridge(bus_pair[0], None):
+        assert tool.sdo[0x1010][1].raw == 0  # does not save on command
+        code = abort_code(lambda: tool.sdo.download(0x1010, 1, struct.pack("<I", SAVE)))
+        assert code == SdoAbort.NOT_STORED
+
+
+def test_unwritable_store_directory_is_a_hardware_abort(
+    bus_pair: tuple[can.BusABC, can.BusABC], tool: canopen.RemoteNode, tmp_path: Path
+) -> None:
+    store = tmp_path / "missing-dir" / "store.json"
+    with running_bridge(bus_pair[0], store):
+        code = abort_code(lambda: tool.sdo.download(0x1010, 1, struct.pack("<I", SAVE)))
+        assert code == SdoAbort.HARDWARE == 0x0606_0000
+
+
+def _stored(tmp_path: Path, objects: dict[str, str]) -> Path:
+    path = tmp_path / "store.json"
+    doc = {"format": "backlash-bridge parameter store", "version": 1, "objects": objects}
+    path.write_text(json.dumps(doc))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("content", "fragment"),
+    [
+        ("{not json", "invalid JSON"),
+        ('{"format": "x", "version": 1, "objects": {}}', "not a parameter store"),
+        (
+            '{"format": "backlash-bridge parameter store", "version": 9, "objects": {}}',
+            "store version 9",
+        ),
+    ],
+)
+def test_malformed_store_file_stops_the_start(
+    bus_pair: tuple[can.BusABC, can.BusABC], tmp_path: Path, content: str, fragment: str
+) -> None:
+    path = tmp_path / "store.json"
+    path.write_text(content)
+    with pytest.raises(StoreError, match=fragment):
+        Bridge(
+            bus_pair[0],
+            BridgeParams.for_axis(AXIS),
+            AXIS.kind,
+            LockstepPacer(0.001),
+            config=BridgeConfig(store_path=path),
+        )
+
+
+@pytest.mark.parametrize(
+    ("objects", "fragment"),
+    [
+        ({"2000h:00": struct.pack("<f", 5000.0).hex()}, "kv_per_s = 5000.0: too high"),
+        ({"2106h:00": "00"}, "not a stored object"),
+        ({"2000h:00": "0000"}, "2 bytes, expected 4"),
+        ({"2000h:00": "zz"}, "not hex bytes"),
+        ({"1016h:01": struct.pack("<I", (7 << 16) | 100).hex()}, "drive node-ID 2"),
+        # each value is fine alone, together they break feed * k_r <= speed limit
+        (
+            {
+                "2007h:00": struct.pack("<f", 10.0).hex(),
+                "2011h:00": struct.pack("<I", 50_000_000).hex(),
+            },
+            "feed",
+        ),
+    ],
+)
+def test_store_file_with_refused_values_stops_the_start(
+    bus_pair: tuple[can.BusABC, can.BusABC], tmp_path: Path, objects: dict, fragment: str
+) -> None:
+    path = _stored(tmp_path, objects)
+    with pytest.raises(StoreError, match=fragment):
+        Bridge(
+            bus_pair[0],
+            BridgeParams.for_axis(AXIS),
+            AXIS.kind,
+            LockstepPacer(0.001),
+            config=BridgeConfig(store_path=path),
+        )
