@@ -145,6 +145,7 @@ def enable_controlword(state: Drive402State, last_controlword: int) -> int:
 #: index of each signal's raw value in the core's vector (bridge.cyclecore)
 _RAW = {signal: K.RAW_INDEX[signal.value] for signal in Signal}
 
+
 def _value(index: int, doc: str) -> property:
     """A float of the controller's core vector (bridge.cyclecore) as an attribute."""
 
@@ -512,8 +513,7 @@ class CycleController:
             (self._encoder_heartbeat_at, self._encoder_state),
         ):
             if at is not None and (
-                nmt != NMT_OPERATIONAL
-                or (consumer_ms and self.now_s - at > consumer_ms / 1000.0)
+                nmt != NMT_OPERATIONAL or (consumer_ms and self.now_s - at > consumer_ms / 1000.0)
             ):
                 return False
         return True

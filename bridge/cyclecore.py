@@ -192,9 +192,7 @@ def running(v: Any, det: Any, x_ref: float, speed: float) -> tuple[int, int]:
     return OK, round(units)
 
 
-def step_running(
-    v: Any, det: Any, frames: int, x_ref: float, speed: float
-) -> tuple[int, int]:
+def step_running(v: Any, det: Any, frames: int, x_ref: float, speed: float) -> tuple[int, int]:
     """One cycle of a running axis whose other supervision is quiet: :func:`measure`, the
     PDO-loss and drive-state checks (:data:`SUPERVISION` if one fails; the controller then
     stops the axis with its reason), :func:`running`."""

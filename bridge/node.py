@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import struct
 import threading
 import time
@@ -175,6 +176,9 @@ class Bridge:
     latency, a core kept busy during the window (for an isolated CPU).
     compiled: the cycle's arithmetic compiled by numba (None: where numba is installed;
     bridge.cyclecore), compiled before the first cycle.
+    cpu: the loop thread's CPU clock (with ``keep_timing``: the CPU time of its work per
+    cycle, and whether a skipped SYNC slot was its own work's or the host's,
+    :mod:`bridge.loopstats`).
     """
 
     def __init__(
@@ -194,6 +198,7 @@ class Bridge:
         gc_control: GcBetweenCycles | None = None,
         busy_poll: bool = False,
         compiled: bool | None = None,
+        cpu: Callable[[], float] = time.thread_time,
     ) -> None:
         self.config = config
         self.pacer = pacer
@@ -242,6 +247,13 @@ class Bridge:
         self.timing = Timing(16 if not keep_timing else 65536)
         self._keep_timing = keep_timing
         self._wall = wall
+        self._cpu = cpu
+        # the cycle since the last SYNC (keep_timing; bridge.loopstats, "which floor binds"):
+        # its wall instant, the wait for the TPDOs up to the window's end, the loop's own work
+        # (CPU time of the cycle's work and of frames and garbage between cycles)
+        self._sync_wall = -math.inf
+        self._waited = 0.0
+        self._own = 0.0
         if overrun_limit is not None and overrun_limit < 1:
             raise BridgeConfigError(f"overrun_limit = {overrun_limit!r}: must be >= 1 or None")
         if not 0.0 <= service_guard_fraction < 1.0:
@@ -478,18 +490,29 @@ class Bridge:
         guard = self.service_guard_s
         spin = self.pacer.spin_s
         gc_control = self.gc_control
+        keep = self._keep_timing
         while True:
             remaining = due - wall()
             if remaining <= spin:
                 break
             if remaining > guard:
                 if service:
+                    started = self._cpu() if keep else 0.0
                     self._serve_one()
+                    self._own += self._cpu() - started if keep else 0.0
                     continue
                 if gc_control is not None and gc_control.due():
+                    started = self._cpu() if keep else 0.0
                     gc_control.collect()
+                    self._own += self._cpu() - started if keep else 0.0
                     continue
-            if poll(remaining - spin):
+            if not poll(remaining - spin):
+                continue
+            if keep:
+                started = self._cpu()
+                take()
+                self._own += self._cpu() - started
+            else:
                 take()
         # the last spin_s: poll the clock, not the bus (a blocking wait wakes late, a bus poll
         # is a system call); then take what arrived meanwhile, so that a TPDO of an earlier
@@ -501,6 +524,25 @@ class Bridge:
                 break
             take()
 
+    def _host_missed(self, due: float) -> bool:
+        """Whether the SYNC slot ``due``, found missed now, was missed because the host kept
+        the loop from running: its cycle -- the wait for the TPDOs up to the window's end,
+        then its own work (bridge.loopstats) -- would have ended in time for the slot."""
+        ready = self._sync_wall + self._waited + self._own
+        host = ready <= due + self.pacer.late_s
+        details = self.timing.overrun_details
+        if len(details) < 16:
+            details.append(
+                {
+                    "since_sync_us": round(1e6 * (self._wall() - self._sync_wall)),
+                    "tpdo_wait_us": round(1e6 * self._waited),
+                    "own_work_us": round(1e6 * self._own),
+                    "slot_after_sync_us": round(1e6 * (due - self._sync_wall)),
+                    "host": host,
+                }
+            )
+        return host
+
     def drain(self) -> None:
         """Handle the frames already received, outside any cycle (TPDOs count as late)."""
         self._between_cycles(None)
@@ -511,21 +553,28 @@ class Bridge:
         pacer = self.pacer
         wall = self._wall
         timing = self.timing
+        keep = self._keep_timing
         k = self._k
         skipped = 0
+        by_host: bool | None = None
         while True:
             slot, due = pacer.slot(k)
-            skipped += slot - k
-            k = slot
+            if slot != k:  # the cycle before ran past this slot
+                if keep and by_host is None:
+                    by_host = self._host_missed(due - (slot - k) * pacer.cycle_s)
+                skipped += slot - k
+                k = slot
             self._between_cycles(due)
             if due is None:
                 break
             sync_wall = wall()
             if pacer.on_time(due, sync_wall):
                 break
+            if keep and by_host is None:
+                by_host = self._host_missed(due)
             k += 1  # preempted past the slot while waiting: skip it, never send it late
             skipped += 1
-        in_a_row = timing.overran(skipped)
+        in_a_row = timing.overran(skipped, by_host)
         limit = self.overrun_limit
         if skipped and limit is not None and in_a_row >= limit:
             self.controller.stop(
@@ -538,12 +587,17 @@ class Bridge:
         self._present = 0
         self._window_open = True
         sync_wall = wall()
+        if keep:
+            self._sync_wall = sync_wall
+            cpu_sync = self._cpu()
         self._send(self._sync_frame)
         if self.peer_poll is not None:
             self.peer_poll()
         end = pacer.window_end(sync_wall)
         if self._record_pending:  # the previous row, while the drive answers the SYNC
             self.flush_record()
+        if keep:
+            cpu_window = self._cpu()
         poll = self._poll
         take = self._take
         busy_poll = self.busy_poll
@@ -564,6 +618,9 @@ class Bridge:
                 break
         self._window_open = False
         inputs_wall = wall()
+        if keep:
+            cpu_inputs = self._cpu()
+            self._waited = min(inputs_wall, end) - sync_wall
         counters = self.counters
         counters.cycles += 1
         present = self._present
@@ -577,10 +634,12 @@ class Bridge:
             log.exception("controller step failed")
             self.controller.stop(StopReason.INTERNAL_ERROR, f"controller step failed: {exc!r}")
         self._send(self._rpdo_frame)
-        if self._keep_timing:
+        if keep:
             now = wall()
+            work = (cpu_window - cpu_sync) + (self._cpu() - cpu_inputs)  # not the TPDO wait
+            self._own = work
             timing.record(
-                0.0 if due is None else sync_wall - due, now - sync_wall, now - inputs_wall
+                0.0 if due is None else sync_wall - due, now - sync_wall, now - inputs_wall, work
             )
         self._record_pending = self.recorder is not None
         self._k = k + 1

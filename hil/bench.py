@@ -19,6 +19,7 @@ import os
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from bridge.cycle import BridgeState
 from bridge.params import BridgeParams
@@ -67,6 +68,33 @@ def lockstep_run(axis: AxisConfig, cycles: int, record: bool) -> dict[str, float
     }
 
 
+def _floors_line(r: dict[str, Any]) -> str:
+    """The loop's cost against the period, its skipped SYNCs by cause, the host's floor
+    measured beside it, and which floor bound."""
+    period_us = 1e6 / r["rate_hz"]
+    line = (
+        f"floors: loop CPU {r['cpu_us_per_cycle']:.0f} µs/cycle = "
+        f"{100 * r['cpu_fraction_of_period']:.0f} % of the {period_us:.0f} µs period (its work "
+        f"alone, without spinning for the SYNC and waiting for the TPDOs: median "
+        f"{r['work_cpu_us_median']:.0f} µs = {100 * r['work_cpu_fraction_of_period']:.1f} %, "
+        f"p99 {r['work_cpu_us_p99']:.0f} µs; cycle core {r['cycle_core']}, frames: "
+        f"{r['frames']}); skipped SYNCs {r['skipped_syncs']}: {r['own_skipped_syncs']} by the "
+        f"loop's own work, {r['host_skipped_syncs']} after the host kept it off the CPU"
+    )
+    host = r.get("host_latency")
+    if host is not None:
+        line += (
+            f"; the host in this run, just before the loop (cyclictest, SCHED_FIFO "
+            f"{host['priority']}, CPU {host['cpu']}, {host['cycles']} wake-ups): "
+            f"{host['over_slack']} at least {host['slack_us']} µs late (the loop's slack: "
+            f"spin + allowed lateness), {host['late_cycles']} at least one cycle, p99 "
+            f"{host['latency_us_p99']:.0f} µs, max {host['latency_us_max']} µs"
+        )
+    elif "host_latency_error" in r:
+        line += f"; host in the same run: {r['host_latency_error']}"
+    return line + f"; binding floor: {r['binding_floor']}"
+
+
 def _placement(drive: str) -> DrivePlacement:
     why = can_run_process_drive()
     if drive == "thread":
@@ -104,6 +132,7 @@ def run_bench(
     rt: RealTimeOptions | None = None,
     drive: str = "auto",
     drive_cpu: int | None = None,
+    host_beside: bool = True,
 ) -> dict[str, object]:
     results: dict[str, object] = {}
     rt = rt or RealTimeOptions()
@@ -124,7 +153,13 @@ def run_bench(
             drive_cpu = _other_cpu(rt.cpu)
         load = os.getloadavg()
         r = realtime_run(
-            axis, seconds, rate_hz=rate_hz, rt=rt, placement=placement, drive_cpu=drive_cpu
+            axis,
+            seconds,
+            rate_hz=rate_hz,
+            rt=rt,
+            placement=placement,
+            drive_cpu=drive_cpu,
+            host_beside=host_beside,
         )
         r["load_average_1_5_15"] = [round(x, 2) for x in load]
         results["realtime"] = r
@@ -145,12 +180,13 @@ def run_bench(
             )
         )
         print(f"latency histogram (µs): {r['latency_histogram_us']}")
-        print(
-            f"host alone (a clock-reading thread, same options, {r['host_gaps_over_50us']} gaps "
-            f"> 50 µs in 2 s, longest {r['host_gap_us_max']:.0f} µs): the floor under the "
-            "loop's maximum; CPU time the hypervisor stole during the run (ms): "
-            f"{r['host_steal_ms']}"
-        )
+        print(_floors_line(r))
+        if "host_gaps_over_50us" in r:
+            print(
+                f"host alone (a clock-reading thread, same options, {r['host_gaps_over_50us']} "
+                f"gaps > 50 µs in 2 s before the run, longest {r['host_gap_us_max']:.0f} µs)"
+            )
+        print(f"CPU time the hypervisor stole during the run (ms): {r['host_steal_ms']}")
     if json_path is not None:
         json_path.write_text(json.dumps(results, indent=2) + "\n")
     return results

@@ -37,6 +37,7 @@ import dataclasses
 import functools
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -123,7 +124,7 @@ def _inner(args: argparse.Namespace) -> None:
     end_s = cycles * axis.control.position_cycle
     refs = SectionX(end_s=end_s, stop_s=min(SectionX.stop_s, end_s)).references(axis)
     # valgrind runs the start-up some 50 times slower: no SDO timeout may fire
-    slow = DriveSetup(sdo_timeout_s=20.0, state_timeout_s=120.0)
+    slow = DriveSetup(sdo_timeout_s=20.0, state_timeout_s=60.0)
     config = BridgeConfig(drive_setup=slow)
     wait_s = 30.0
     with tempfile.TemporaryDirectory() as tmp:
@@ -232,6 +233,8 @@ def main(argv: list[str]) -> int:
     if args.inner:
         _inner(args)
         return 0
+    # a kill ends the run like ^C: the namespace and the temporary files are removed
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
     with contextlib.ExitStack() as stack:
         tmp = stack.enter_context(tempfile.TemporaryDirectory())
         out = Path(tmp) / "callgrind.out"

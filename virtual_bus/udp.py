@@ -58,9 +58,7 @@ _HEAD = b"\x8b\xa9timestamp\xcb"  # fixmap 11, "timestamp": float 64
 _ID_KEY = b"\xaearbitration_id"
 _ID_AT = len(_HEAD) + 8  # after the timestamp's 8 bytes
 _VALUE_AT = _ID_AT + len(_ID_KEY)
-_PLAIN_FLAGS = (
-    b"\xaeis_extended_id\xc2\xafis_remote_frame\xc2\xaeis_error_frame\xc2\xa7channel"
-)
+_PLAIN_FLAGS = b"\xaeis_extended_id\xc2\xafis_remote_frame\xc2\xaeis_error_frame\xc2\xa7channel"
 _CHANNEL_KEY_SIZE = 8  # "\xa7channel"
 _DLC_KEY = b"\xa3dlc"
 _DATA_KEY = b"\xa4data\xc4"  # bin 8

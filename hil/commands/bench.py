@@ -55,6 +55,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="pin the drive process to CPU N (default with --cpu: another CPU)",
     )
+    parser.add_argument(
+        "--no-host-latency",
+        action="store_true",
+        help="real time: without cyclictest before the loop (default with --rt-priority and "
+        "--cpu where cyclictest is installed: the host's floor in the same run)",
+    )
     add_realtime_options(parser)
 
 
@@ -82,5 +88,6 @@ def run(args: argparse.Namespace) -> int:
         rt=rt,
         drive=args.drive,
         drive_cpu=args.drive_cpu,
+        host_beside=not args.no_host_latency,
     )
     return 0

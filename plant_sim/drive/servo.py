@@ -332,9 +332,7 @@ class ServoAxis:
     def _encoder_ok(self) -> bool:
         """Paper section II.B: |load scale − motor encoder| within 2101h (2104h's value)."""
         held = self._measured()
-        units = O.load_difference_units(
-            discrepancy(held[0], held[1], self._ratio), self.axis.kind
-        )
+        units = O.load_difference_units(discrepancy(held[0], held[1], self._ratio), self.axis.kind)
         return abs(units) <= self._table.value(O.ENCODER_TOLERANCE)
 
     def _setpoint_timeout(self) -> None:
