@@ -30,7 +30,9 @@ from __future__ import annotations
 
 import logging
 import struct
+from collections.abc import Callable
 from enum import Enum, IntEnum
+from typing import Any
 
 from canopen.profiles.p402 import State402
 
@@ -146,6 +148,40 @@ def enable_controlword(state: Drive402State, last_controlword: int) -> int:
 _RAW = {signal: K.RAW_INDEX[signal.value] for signal in Signal}
 
 
+def _decoder(
+    v: Any, unpack: Callable[[Any, int], tuple[int, ...]], at: tuple[int, ...]
+) -> Callable[[Any, int], None]:
+    """``decode(buffer, offset)``: the fields ``unpack`` reads at ``offset`` into ``v[at[0]]``,
+    ``v[at[1]]``, ... (one unpacking assignment for the usual frame sizes)."""
+    if len(at) == 1:
+        (a,) = at
+
+        def decode1(buffer: Any, offset: int) -> None:
+            (v[a],) = unpack(buffer, offset)
+
+        return decode1
+    if len(at) == 2:
+        a, b = at
+
+        def decode2(buffer: Any, offset: int) -> None:
+            v[a], v[b] = unpack(buffer, offset)
+
+        return decode2
+    if len(at) == 3:
+        a, b, c = at
+
+        def decode3(buffer: Any, offset: int) -> None:
+            v[a], v[b], v[c] = unpack(buffer, offset)
+
+        return decode3
+
+    def decode(buffer: Any, offset: int) -> None:
+        for i, value in zip(at, unpack(buffer, offset)):  # noqa: B905 (same length)
+            v[i] = value
+
+    return decode
+
+
 def _value(index: int, doc: str) -> property:
     """A float of the controller's core vector (bridge.cyclecore) as an attribute."""
 
@@ -234,6 +270,8 @@ class CycleController:
         if len(self._det) != rcore.detector_state_size(reg.n):
             self._v, self._det = self.core.vectors(reg.n)
             self._v[:] = v
+            if hasattr(self, "_formats"):
+                self._make_decoders()  # they write into the vector
         self._limits(params)
         self.reset_regulator()
         self._kr = params.transmission_ratio
@@ -269,10 +307,11 @@ class CycleController:
     def set_layout(self, layout: CycleLayout) -> None:
         """Decode the frames of ``layout`` from the next step on (start-up only)."""
         self.layout = layout
-        self._decoders = tuple(
+        self._formats = tuple(
             (struct.Struct(f.fmt).unpack_from, tuple(_RAW[s] for s in f.signals))
             for f in layout.frames
         )
+        self._make_decoders()
         self._rpdo_struct = struct.Struct(layout.rpdo_fmt)
         self._pack_rpdo = self._rpdo_struct.pack_into
         self.set_rpdo_target(bytearray(self._rpdo_struct.size), 0)
@@ -464,10 +503,13 @@ class CycleController:
     def decode(self, slot: int, buffer: bytes | bytearray | memoryview, offset: int) -> None:
         """The payload of the layout's frame ``slot`` at ``buffer[offset:]`` (its mapping's
         length, checked by the caller) into the raw values of this cycle."""
-        unpack, indices = self._decoders[slot]
-        v = self._v
-        for i, value in zip(indices, unpack(buffer, offset)):  # noqa: B905 (same length)
-            v[i] = value
+        self._decoders[slot](buffer, offset)
+
+    def _make_decoders(self) -> None:
+        """One function per frame that unpacks its payload straight into the vector."""
+        self._decoders = tuple(_decoder(self._v, unpack, at) for unpack, at in self._formats)
+        #: the loop's decoder of each frame (bridge.node; rebuilt with the vector)
+        self.decoders = self._decoders
 
     def step_decoded(self, now_s: float, present: int) -> bytearray | memoryview:
         """:meth:`step` for frames already given to :meth:`decode` (the loop decodes each
@@ -504,17 +546,23 @@ class CycleController:
 
     def _quiet(self) -> bool:
         """Nothing for :meth:`_supervise` but the checks the core makes (PDO loss, drive
-        state): no EMCY pending, heartbeats (if supervised) in time and operational."""
+        state): no EMCY pending, heartbeats (if supervised) in time and operational -- the
+        same conditions as there."""
         if self._emcy_pending is not None or self._encoder_emcy_pending is not None:
             return False
-        consumer_ms = self.params.heartbeat_consumer_ms
-        for at, nmt in (
-            (self._heartbeat_at, self._heartbeat_state),
-            (self._encoder_heartbeat_at, self._encoder_state),
-        ):
-            if at is not None and (
-                nmt != NMT_OPERATIONAL or (consumer_ms and self.now_s - at > consumer_ms / 1000.0)
-            ):
+        at = self._heartbeat_at
+        if at is not None:
+            if self._heartbeat_state != NMT_OPERATIONAL:
+                return False
+            consumer_ms = self.params.heartbeat_consumer_ms
+            if consumer_ms and self.now_s - at > consumer_ms / 1000.0:
+                return False
+        at = self._encoder_heartbeat_at
+        if at is not None:
+            if self._encoder_state != NMT_OPERATIONAL:
+                return False
+            consumer_ms = self.params.heartbeat_consumer_ms
+            if consumer_ms and self.now_s - at > consumer_ms / 1000.0:
                 return False
         return True
 

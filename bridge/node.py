@@ -357,7 +357,7 @@ class Bridge:
         if self._present & bit:
             self.counters.late += 1  # an extra frame in this window: the newest one is used
         self._present |= bit
-        self.controller.decode(slot, buffer, offset)
+        self.controller.decoders[slot](buffer, offset)
 
     @contextlib.contextmanager
     def serving(self) -> Iterator[None]:
@@ -436,8 +436,7 @@ class Bridge:
         try:
             msg = frames.message()
         except (can.CanError, OSError) as exc:  # e.g. a datagram that is no frame
-            self.timing.errors += 1
-            log.error("receive failed: %s", exc)
+            self._receive_failed(exc)
             return
         self._receive(msg)
 
@@ -454,9 +453,12 @@ class Bridge:
         try:
             return self.frames.receive(timeout)
         except (can.CanError, OSError) as exc:
-            self.timing.errors += 1
-            log.error("receive failed: %s", exc)
+            self._receive_failed(exc)
             return False
+
+    def _receive_failed(self, exc: Exception) -> None:
+        self.timing.errors += 1
+        log.error("receive failed: %s", exc)
 
     def _send(self, frame: OutFrame) -> bool:
         try:
@@ -574,14 +576,17 @@ class Bridge:
                 by_host = self._host_missed(due)
             k += 1  # preempted past the slot while waiting: skip it, never send it late
             skipped += 1
-        in_a_row = timing.overran(skipped, by_host)
-        limit = self.overrun_limit
-        if skipped and limit is not None and in_a_row >= limit:
-            self.controller.stop(
-                StopReason.CYCLE_OVERRUN,
-                f"{in_a_row} cycles in a row overran the {pacer.cycle_s * 1e3:g} ms cycle "
-                f"({skipped} SYNC slot(s) skipped before SYNC {k}; limit {limit})",
-            )
+        if skipped:
+            in_a_row = timing.overran(skipped, by_host)
+            limit = self.overrun_limit
+            if limit is not None and in_a_row >= limit:
+                self.controller.stop(
+                    StopReason.CYCLE_OVERRUN,
+                    f"{in_a_row} cycles in a row overran the {pacer.cycle_s * 1e3:g} ms cycle "
+                    f"({skipped} SYNC slot(s) skipped before SYNC {k}; limit {limit})",
+                )
+        else:
+            timing.consecutive_overruns = 0
         if self.before_sync is not None:
             self.before_sync(k)
         self._present = 0
@@ -598,7 +603,7 @@ class Bridge:
             self.flush_record()
         if keep:
             cpu_window = self._cpu()
-        poll = self._poll
+        receive = self.frames.receive
         take = self._take
         busy_poll = self.busy_poll
         full = self._all_slots
@@ -612,7 +617,12 @@ class Bridge:
                 late_reads -= 1
                 if late_reads < 0:
                     break
-            if poll(remaining if remaining > 0.0 and not busy_poll else 0.0):
+            try:
+                got = receive(remaining if remaining > 0.0 and not busy_poll else 0.0)
+            except (can.CanError, OSError) as exc:
+                self._receive_failed(exc)
+                got = False
+            if got:
                 take()
             elif remaining <= 0.0:
                 break

@@ -36,7 +36,7 @@ import time
 
 import can
 
-from virtual_bus.udp import MAX_DATAGRAM, LoopbackUdpBus, parse_plain
+from virtual_bus.udp import HEAD, MAX_DATAGRAM, TIMESTAMP_END, LoopbackUdpBus, parse_plain
 
 #: struct can_frame / canfd_frame sizes (linux/can.h): CAN_MTU, CANFD_MTU.
 CAN_MTU = 16
@@ -267,27 +267,61 @@ class SocketCanPort(_SocketPort):
 class UdpPort(_SocketPort):
     """:class:`~virtual_bus.udp.LoopbackUdpBus` in python-can's wire format, read in place
     and written from templates (module docstring); the bus's own frames, which the kernel
-    loops back, are never returned."""
+    loops back, are never returned.
+
+    A datagram that equals one read before except for its timestamp and its payload is that
+    frame again (python-can packs the same fields in the same order every time): after the
+    first frame of each kind (COB-ID, length, sender) is parsed (:func:`virtual_bus.udp.
+    parse_plain`), its bytes around the timestamp and the payload are kept and the next ones
+    are recognised by two comparisons (at most :data:`KNOWN_FRAMES` kinds are kept)."""
 
     kind = "raw UDP socket, python-can's msgpack format parsed in place, frame templates"
+
+    #: Kinds of frames remembered (a cycle has a handful; garbage cannot grow the table).
+    KNOWN_FRAMES = 32
 
     def __init__(self, bus: LoopbackUdpBus, stamped: bool = False) -> None:
         super().__init__(bus, bus.udp_socket, stamped, MAX_DATAGRAM)
         self._udp = bus
+        self._own = bus.own_marker
+        self._destination = bus.destination
+        # by datagram size: (COB-ID, length, payload offset, bytes from the end of the
+        # timestamp to the payload, bytes after the payload)
+        self._known: dict[int, list[tuple[int, int, int, bytes, bytes]]] = {}
+        self._known_count = 0
 
     def receive(self, timeout_s: float | None) -> bool:
         if not self._read(timeout_s):
             return False
-        udp = self._udp
         buffer = self.buffer
-        while udp.is_own(buffer, self.size):  # looped back by the kernel: never returned
+        own = self._own
+        while buffer.find(own, 0, self.size) >= 0:  # looped back by the kernel: not returned
             if not self._read(0.0):
                 return False
-        found = parse_plain(buffer, self.size)
+        size = self.size
+        for cob_id, length, offset, before, after in self._known.get(size, ()):
+            if (
+                buffer.startswith(before, TIMESTAMP_END)
+                and buffer.startswith(after, offset + length)
+                and buffer.startswith(HEAD)
+            ):
+                self.cob_id = cob_id
+                self.length = length
+                self.offset = offset
+                return True
+        found = parse_plain(buffer, size)
         if found is None:  # not a plain frame: msgpack and python-can's checks decide
             self.cob_id = -1
-        else:
-            self.cob_id, self.length, self.offset, _ = found
+            return True
+        cob_id, length, offset, _ = found
+        self.cob_id = cob_id
+        self.length = length
+        self.offset = offset
+        if self._known_count < self.KNOWN_FRAMES:
+            before = bytes(buffer[TIMESTAMP_END:offset])
+            after = bytes(buffer[offset + length : size])
+            self._known.setdefault(size, []).append((cob_id, length, offset, before, after))
+            self._known_count += 1
         return True
 
     def message(self) -> can.Message:
@@ -301,7 +335,7 @@ class UdpPort(_SocketPort):
         return OutFrame(cob_id, length, wire, offset, wire=wire)
 
     def send(self, frame: OutFrame) -> None:
-        self.sock.sendto(frame.wire, self._udp.destination)  # type: ignore[arg-type]
+        self.sock.sendto(frame.wire, self._destination)  # type: ignore[arg-type]
 
 
 def frame_port(bus: can.BusABC, *, stamped: bool = False) -> FramePort:

@@ -32,6 +32,7 @@ offset). ``tests/test_wire_codecs.py`` checks both against python-can's ``pack_m
 
 from __future__ import annotations
 
+import ctypes
 import select
 import socket
 import struct
@@ -54,9 +55,11 @@ _ANCILLARY_SIZE = socket.CMSG_SPACE(_TIMESPEC.size)
 
 # python-can's pack_message: a map of 11 fields in this order (msgpack, use_bin_type); what a
 # classic standard data frame looks like around its identifier, channel, dlc and data
-_HEAD = b"\x8b\xa9timestamp\xcb"  # fixmap 11, "timestamp": float 64
+HEAD = b"\x8b\xa9timestamp\xcb"  # fixmap 11, "timestamp": float 64
+#: where the timestamp's 8 bytes end
+TIMESTAMP_END = len(HEAD) + 8
 _ID_KEY = b"\xaearbitration_id"
-_ID_AT = len(_HEAD) + 8  # after the timestamp's 8 bytes
+_ID_AT = TIMESTAMP_END
 _VALUE_AT = _ID_AT + len(_ID_KEY)
 _PLAIN_FLAGS = b"\xaeis_extended_id\xc2\xafis_remote_frame\xc2\xaeis_error_frame\xc2\xa7channel"
 _CHANNEL_KEY_SIZE = 8  # "\xa7channel"
@@ -69,7 +72,7 @@ def parse_plain(buffer: bytearray, size: int) -> tuple[int, int, int, int] | Non
     """A classic standard data frame in python-can's wire format, read where
     ``pack_message`` puts its fields: (COB-ID, length, payload offset, channel offset), or
     None for anything else (other frame kinds, other encodings, garbage: msgpack decides)."""
-    if not buffer.startswith(_HEAD) or not buffer.startswith(_ID_KEY, _ID_AT):
+    if not buffer.startswith(HEAD) or not buffer.startswith(_ID_KEY, _ID_AT):
         return None
     pos = _VALUE_AT
     kind = buffer[pos]
@@ -110,6 +113,102 @@ def parse_plain(buffer: bytearray, size: int) -> tuple[int, int, int, int] | Non
     return cob_id, dlc, offset, channel_at
 
 
+#: setsockopt option of a classic BPF socket filter (linux/asm-generic/socket.h).
+SO_ATTACH_FILTER = 26
+#: where the token's text starts in a frame this bus sends, after an identifier of 1, 2 or 3
+#: bytes: the channel key and a str 8 header after the three flags
+_TOKEN_AFTER_ID = len(_PLAIN_FLAGS) + 2
+_UDP_HEADER = 8
+
+
+class _SockFilter(ctypes.Structure):
+    _fields_ = (
+        ("code", ctypes.c_uint16),
+        ("jt", ctypes.c_uint8),
+        ("jf", ctypes.c_uint8),
+        ("k", ctypes.c_uint32),
+    )
+
+
+class _SockFprog(ctypes.Structure):
+    _fields_ = (("len", ctypes.c_ushort), ("filter", ctypes.POINTER(_SockFilter)))
+
+
+def own_frame_filter(token: bytes) -> list[tuple[int, int, int, int]]:
+    """A classic BPF program (code, jt, jf, k) for a UDP socket that drops the datagrams of
+    python-can's format carrying ``token`` as a str 8 channel where :meth:`LoopbackUdpBus.
+    send` puts it, and keeps everything else (other layouts, short or foreign datagrams: the
+    bus still drops an own frame it finds in user space). Offsets count from the UDP header.
+    """
+    if len(token) % 4 or not 32 <= len(token) <= 255:
+        raise ValueError("token: 32..255 bytes, a multiple of 4")
+    ld_len, ldb_abs, ld_ind, ldh_ind, ldx_imm = 0x80, 0x30, 0x40, 0x48, 0x01
+    jeq, jge, ja, ret = 0x15, 0x35, 0x05, 0x06
+    head = _UDP_HEADER
+    # the token's str 8 header (d9, length), after an identifier of L bytes: + L (classic BPF
+    # has no negative offsets to reach back from the text)
+    header_at = head + _VALUE_AT + _TOKEN_AFTER_ID - 2
+    # (code, jump if true, jump if false, k); jumps name labels, None: the next instruction
+    asm: list[tuple[int, str | None, str | None, int | str]] = [
+        (ld_len, None, None, 0),
+        (jge, None, "keep", header_at + 5 + len(token)),  # too short for an own frame
+        (ldb_abs, None, None, head + len(HEAD) - 1),  # the timestamp's type: float 64
+        (jeq, None, "keep", 0xCB),
+        (ldb_abs, None, None, head + _VALUE_AT),  # the identifier's type
+        (jge, None, "id1", 0x80),  # below 0x80: positive fixint, one byte
+        (jeq, "id2", None, 0xCC),  # uint 8: two bytes
+        (jeq, "id3", "keep", 0xCD),  # uint 16: three bytes
+        ("id1", None, None, 0),
+        (ldx_imm, None, None, header_at + 1),
+        (ja, None, None, "text"),
+        ("id2", None, None, 0),
+        (ldx_imm, None, None, header_at + 2),
+        (ja, None, None, "text"),
+        ("id3", None, None, 0),
+        (ldx_imm, None, None, header_at + 3),
+        ("text", None, None, 0),
+        (ldh_ind, None, None, 0),  # the str 8 header: d9, the length
+        (jeq, None, "keep", 0xD900 | len(token)),
+    ]
+    for i in range(0, len(token), 4):
+        asm.append((ld_ind, None, None, 2 + i))
+        asm.append((jeq, None, "keep", int.from_bytes(token[i : i + 4], "big")))
+    asm.append((ret, None, None, 0))  # an own frame: dropped
+    asm.append(("keep", None, None, 0))
+    asm.append((ret, None, None, 0xFFFFFFFF))  # everything else, whole
+    labels: dict[str, int] = {}
+    code_only: list[tuple[int, str | None, str | None, int | str]] = []
+    for entry in asm:
+        if isinstance(entry[0], str):
+            labels[entry[0]] = len(code_only)
+        else:
+            code_only.append(entry)
+
+    def skip(at: int, target: str | None) -> int:
+        return 0 if target is None else labels[target] - at - 1
+
+    program = []
+    for at, (code, jt, jf, k) in enumerate(code_only):
+        if code == ja:
+            program.append((code, 0, 0, skip(at, str(k))))
+        else:
+            assert isinstance(k, int)
+            program.append((code, skip(at, jt), skip(at, jf), k))
+    return program
+
+
+def attach_own_frame_filter(sock: socket.socket, token: bytes) -> bool:
+    """Attach :func:`own_frame_filter` to ``sock``; False where the kernel refuses it."""
+    program = own_frame_filter(token)
+    instructions = (_SockFilter * len(program))(*(_SockFilter(*i) for i in program))
+    fprog = _SockFprog(len(program), instructions)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_ATTACH_FILTER, bytes(fprog))  # type: ignore[call-overload]
+    except OSError:
+        return False
+    return True
+
+
 class LoopbackUdpBus(UdpMulticastBus):
     """``UdpMulticastBus`` on ``channel`` (default :data:`UDP_GROUP`) that refuses to open
     outside a private network namespace (:func:`private_namespace_problem`) and never
@@ -142,6 +241,9 @@ class LoopbackUdpBus(UdpMulticastBus):
         self._view = memoryview(self._buffer)
         self._buffers = [self._buffer]
         self.channel_info = f"udp_multicast group {channel}"
+        #: the kernel drops this bus's own frames before they reach its socket (a BPF filter;
+        #: False: refused here, they are dropped after they are read)
+        self.filters_own_frames = attach_own_frame_filter(self._socket, token)
 
     # --- what a loop without a message per frame needs (virtual_bus.framing.UdpPort) --------
     @property
@@ -153,6 +255,11 @@ class LoopbackUdpBus(UdpMulticastBus):
     def destination(self) -> tuple[str, int]:
         """Where a frame is sent (the group and port)."""
         return self._destination
+
+    @property
+    def own_marker(self) -> bytes:
+        """The bytes of this bus's token as every frame it sends carries them."""
+        return self._own_marker
 
     def is_own(self, buffer: bytearray, size: int) -> bool:
         """Whether a datagram is one of this bus's own frames (looped back by the kernel)."""

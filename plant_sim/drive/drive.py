@@ -77,6 +77,7 @@ def warm_up(axis: AxisConfig) -> None:
     plant.advance(0.0)
     plant.advance_torque(0.0)
     plant.read_measured(np.zeros(4))
+    _ = plant.motor_position_rad, plant.load_position, plant.motor_speed_rad_s  # harness reads
 
 
 class SimulatedDrive:

@@ -96,6 +96,10 @@ class LatchResult:
     short_frames: list[int] = field(default_factory=list)  # CAN ids of too short RPDOs
 
 
+#: What a latch without pending RPDOs did (nothing; shared, never changed).
+_NOTHING_LATCHED = LatchResult()
+
+
 @dataclass
 class _Channel:
     kind: PdoKind
@@ -129,6 +133,20 @@ class _Plan:
     getters: tuple[Callable[[], int], ...]
     layout: struct.Struct | None  # None: encode object by object
     size: int  # bytes of the mapping
+    pack: Callable[[], bytes] | None = None  # the payload now (layout and getters; None: no layout)
+
+
+def _packer(layout: struct.Struct, getters: tuple[Callable[[], int], ...]) -> Callable[[], bytes]:
+    """The payload of a compiled PDO now: ``layout.pack`` of its getters' values (the usual
+    sizes without building a list)."""
+    pack = layout.pack
+    if len(getters) == 2:
+        g0, g1 = getters
+        return lambda: pack(g0(), g1())
+    if len(getters) == 3:
+        g0, g1, g2 = getters
+        return lambda: pack(g0(), g1(), g2())
+    return lambda: pack(*[get() for get in getters])
 
 
 class PdoEngine:
@@ -346,14 +364,16 @@ class PdoEngine:
             layout = struct.Struct("<" + "".join(f for f in formats if f is not None))
             if layout.size * 8 != sum(m.bits for m in mapping):
                 layout = None
+        getters = tuple(self._table.getter(k) for k in keys)
         return _Plan(
             ch,
             self.can_id(ch),
             self._table.value((ch.comm, 2)),
             keys,
-            tuple(self._table.getter(k) for k in keys),
+            getters,
             layout,
             sum(m.bits for m in mapping) // 8,
+            None if layout is None else _packer(layout, getters),
         )
 
     def _compile(self) -> None:
@@ -408,10 +428,10 @@ class PdoEngine:
         (CiA 301: EMCY 0x8210, reported in the result); a longer one is used up to its
         mapped length. A value an object refuses is logged and skipped. ``before_apply`` is
         called before the objects of each accepted RPDO are written."""
+        if not self._pending:
+            return _NOTHING_LATCHED
         result = LatchResult()
         pending, self._pending = self._pending, {}
-        if not pending:
-            return result
         if self._rx_plans is None:
             self._compile()
         plans = self._rx_plans
@@ -486,6 +506,6 @@ class PdoEngine:
         return sent
 
     def _plan_frame(self, plan: _Plan) -> bytes:
-        if plan.layout is not None:
-            return plan.layout.pack(*[get() for get in plan.getters])
+        if plan.pack is not None:
+            return plan.pack()
         return self.frame(plan.channel)

@@ -122,7 +122,10 @@ class ServoAxis:
         self._ratio = plant.axis.transmission_ratio
         self._word_state: State402 | None = None  # statusword(): state of _state_word
         self._state_word = 0
+        self._limit_for: int | None = None  # torque_limit_nm(): the 6072h it was made for
+        self._limit_nm = math.inf
         self._set_axis_defaults()
+        self._rated_mnm = table.value(O.RATED_TORQUE)  # 6076h, read-only
         self._attach_objects()
         self.apply_torque_limit()
 
@@ -157,14 +160,24 @@ class ServoAxis:
         t.on(O.ERROR_CODE, read=lambda: self._errors.error_code)
         t.on(O.STATUSWORD, read=self.statusword)
         t.on(O.MODES_OF_OPERATION_DISPLAY, read=lambda: t.value(O.MODES_OF_OPERATION))
-        # measured(): motor position (rad), load position, motor speed (rad/s), torque (N·m)
-        t.on(O.POSITION_ACTUAL, read=lambda: O.motor_position_increments(measured()[0]))
-        t.on(O.VELOCITY_ACTUAL, read=lambda: O.motor_speed_increments_s(measured()[2]))
+        # measured(): motor position (rad), load position, motor speed (rad/s), torque (N·m);
+        # the readings held since the last step without the call where they are (every SYNC)
+        t.on(
+            O.POSITION_ACTUAL,
+            read=lambda: O.motor_position_increments((self._held or measured())[0]),
+        )
+        t.on(
+            O.VELOCITY_ACTUAL,
+            read=lambda: O.motor_speed_increments_s((self._held or measured())[2]),
+        )
         t.on(
             O.TORQUE_ACTUAL,
-            read=lambda: O.torque_permille(measured()[3], t.value(O.RATED_TORQUE)),
+            read=lambda: O.torque_permille((self._held or measured())[3], self._rated_mnm),
         )
-        t.on(O.LOAD_POSITION_ACTUAL, read=lambda: O.load_position_units(measured()[1], kind))
+        t.on(
+            O.LOAD_POSITION_ACTUAL,
+            read=lambda: O.load_position_units((self._held or measured())[1], kind),
+        )
         t.on(
             O.LOAD_MINUS_MOTOR,
             read=lambda: O.load_difference_units(discrepancy(*measured()[:2], ratio), kind),
@@ -219,12 +232,15 @@ class ServoAxis:
 
     @property
     def torque_limit_nm(self) -> float:
-        """The torque limit in force: min(axis file limit, 6072h · 6076h)."""
-        t = self._table
-        return min(
-            self._axis_limit_nm,
-            O.torque_limit_nm(t.value(O.MAX_TORQUE), t.value(O.RATED_TORQUE)),
-        )
+        """The torque limit in force: min(axis file limit, 6072h · 6076h); 6076h is read-only
+        (its value from the drive configuration), kept from the last 6072h read."""
+        max_torque = self._table.value(O.MAX_TORQUE)
+        if max_torque != self._limit_for:
+            self._limit_for = max_torque
+            self._limit_nm = min(
+                self._axis_limit_nm, O.torque_limit_nm(max_torque, self._rated_mnm)
+            )
+        return self._limit_nm
 
     def apply_torque_limit(self) -> None:
         apply_torque_limit(self.plant, self.torque_limit_nm)
@@ -238,7 +254,7 @@ class ServoAxis:
             self._word_state, self._state_word = state, _state_word(state)
         word = self._state_word
         if state in _DRIVING and (
-            abs(self._measured()[3]) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
+            abs((self._held or self._measured())[3]) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
         ):
             word |= SW_INTERNAL_LIMIT
         if self._errors.any_active and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
@@ -268,15 +284,14 @@ class ServoAxis:
     def supervise(self, rpdo_received: bool) -> None:
         """After the RPDO latch, before the TPDOs: watchdog, encoders, end of the ramps."""
         t = self._table
-        if self.sm.state is S.OPERATION_ENABLED:
-            if self.watchdog.on_sync(rpdo_received, t.value(O.SETPOINT_TIMEOUT)):
-                self._setpoint_timeout()
-        else:
-            self.watchdog.reset()
+        state = self.sm.state
+        if state is not S.OPERATION_ENABLED or rpdo_received:
+            self.watchdog.reset()  # what on_sync does with an RPDO received
+        elif self.watchdog.on_sync(False, t.value(O.SETPOINT_TIMEOUT)):
+            self._setpoint_timeout()
         if self.sm.state not in (S.FAULT_REACTION_ACTIVE, S.FAULT) and not self._encoder_ok():
             self._fault(EMCY_SENSOR, emcy_data_int32(t.read(O.LOAD_MINUS_MOTOR)))
-        standstill = abs(self._measured()[2]) <= self.config.standstill_rad_s
-        if self._ramp_done and standstill:
+        if self._ramp_done and abs(self._measured()[2]) <= self.config.standstill_rad_s:
             if self.sm.state is S.QUICK_STOP_ACTIVE and t.value(O.QUICK_STOP_OPTION) in (1, 2):
                 self._take(self.sm.event(Event.QUICK_STOP_COMPLETED))
             elif self.sm.state is S.FAULT_REACTION_ACTIVE:
@@ -286,20 +301,20 @@ class ServoAxis:
         """Run the plant one position cycle as the state says (see the module docstring),
         then read its measuring systems for the next SYNC (:meth:`hold_measurements`)."""
         self._held = None
-        self._step_plant()
-        self._held = self._read_plant()
+        coasting = self._step_plant()
+        self._held = held = self._read_plant()
+        if coasting:  # the speed loop follows from where the axis is when it takes over
+            self._last_setpoint_rad_s = held[2]
 
-    def _step_plant(self) -> None:
+    def _step_plant(self) -> bool:
+        """One position cycle of the plant; True when the power stage is off (coasting)."""
         p, t = self.plant, self._table
         disturbance_nm = t.value(O.DISTURBANCE) / 1000.0
         state = self.sm.state
         if state is S.OPERATION_ENABLED:
             speed = O.increments_to_rad(t.value(O.TARGET_VELOCITY))
-            p.advance(
-                speed_setpoint_rad_s=speed,
-                disturbance_nm=disturbance_nm,
-                torque_feedforward_nm=self._torque_feedforward_nm(speed),
-            )
+            p.advance(speed, disturbance_nm, self._torque_feedforward_nm(speed))
+            return False
         elif state in (S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE):
             if state is S.QUICK_STOP_ACTIVE:
                 slow = t.value(O.QUICK_STOP_OPTION) in (1, 5)
@@ -317,9 +332,9 @@ class ServoAxis:
                 torque_feedforward_nm=self._torque_feedforward_nm(self._ramp_rad_s),
             )
             self._ramp_done = self._ramp_rad_s == 0.0
-        else:
-            p.advance_torque(0.0, disturbance_nm)
-            self._last_setpoint_rad_s = p.motor_speed_rad_s
+            return False
+        p.advance_torque(0.0, disturbance_nm)
+        return True
 
     def _torque_feedforward_nm(self, setpoint_rad_s: float) -> float:
         """J_ff times the speed set point's change over the last position cycle (N·m)."""
@@ -331,7 +346,7 @@ class ServoAxis:
     # --- protection ----------------------------------------------------------------------------
     def _encoder_ok(self) -> bool:
         """Paper section II.B: |load scale − motor encoder| within 2101h (2104h's value)."""
-        held = self._measured()
+        held = self._held or self._measured()
         units = O.load_difference_units(discrepancy(held[0], held[1], self._ratio), self.axis.kind)
         return abs(units) <= self._table.value(O.ENCODER_TOLERANCE)
 
@@ -382,7 +397,7 @@ class ServoAxis:
             if tr.target is S.OPERATION_ENABLED:
                 self.watchdog.reset()
             elif tr.target in (S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE):
-                self._ramp_rad_s = self.plant.motor_speed_rad_s
+                self._ramp_rad_s = self._measured()[2]  # the plant's speed now
                 self._ramp_done = False
                 if tr.target is S.QUICK_STOP_ACTIVE:
                     immediate = self._table.value(O.QUICK_STOP_OPTION) == 0
