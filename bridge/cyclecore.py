@@ -238,7 +238,7 @@ def numba_available() -> bool:
     """Whether numba is installed (found without importing it)."""
     try:
         return importlib.util.find_spec("numba") is not None
-    except ImportError:
+    except (ImportError, ValueError):  # refused by an import hook, or blocked in sys.modules
         return False
 
 
