@@ -530,6 +530,8 @@ class Bridge:
         """Whether the SYNC slot ``due``, found missed now, was missed because the host kept
         the loop from running: its cycle -- the wait for the TPDOs up to the window's end,
         then its own work (bridge.loopstats) -- would have ended in time for the slot."""
+        if self._sync_wall == -math.inf:  # before the first SYNC: nothing of a cycle ran
+            return True
         ready = self._sync_wall + self._waited + self._own
         host = ready <= due + self.pacer.late_s
         details = self.timing.overrun_details

@@ -133,10 +133,14 @@ def run_bench(
     drive: str = "auto",
     drive_cpu: int | None = None,
     host_beside: bool = True,
+    socketcan: str | None = None,
 ) -> dict[str, object]:
     results: dict[str, object] = {}
     rt = rt or RealTimeOptions()
-    placement = _placement(drive) if seconds is not None else DrivePlacement.THREAD
+    if socketcan is not None:  # two processes on the interface: no namespace, no root
+        placement = DrivePlacement.PROCESS
+    else:
+        placement = _placement(drive) if seconds is not None else DrivePlacement.THREAD
     if lockstep:
         for record in (False, True):
             key = "lockstep_recording" if record else "lockstep"
@@ -160,6 +164,7 @@ def run_bench(
             placement=placement,
             drive_cpu=drive_cpu,
             host_beside=host_beside,
+            socketcan=socketcan,
         )
         r["load_average_1_5_15"] = [round(x, 2) for x in load]
         results["realtime"] = r

@@ -61,7 +61,7 @@ from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
 from bridge.timing import RealTimePacer
 from regulator import RegulatorConfig
-from virtual_bus import BusConfig, open_bus
+from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.contract import heartbeat_cob_id
 from virtual_bus.formats.axis import AxisConfig, dump_axis
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
@@ -130,25 +130,18 @@ def drive_options(rt: RealTimeOptions, drive_cpu: int | None) -> list[str]:
 
 
 def _drive_command(
-    ns: NetworkNamespace, axis_path: Path, rt: RealTimeOptions, drive_cpu: int | None
+    axis_path: Path,
+    rt: RealTimeOptions,
+    drive_cpu: int | None,
+    ns: NetworkNamespace | None,
+    socketcan: str | None,
 ) -> list[str]:
-    """``python -m plant_sim drive`` on udp_multicast inside ``ns`` with
-    :func:`drive_options`."""
-    return ns.command(
-        [
-            sys.executable,
-            "-m",
-            "plant_sim",
-            "drive",
-            "--interface",
-            "udp_multicast",
-            "--channel",
-            UDP_GROUP,
-            "--axis",
-            str(axis_path),
-            *drive_options(rt, drive_cpu),
-        ]
-    )
+    """``python -m plant_sim drive`` with :func:`drive_options`: on udp_multicast inside
+    ``ns``, or on the SocketCAN interface ``socketcan``."""
+    bus = ["socketcan", socketcan] if socketcan is not None else ["udp_multicast", UDP_GROUP]
+    argv = [sys.executable, "-m", "plant_sim", "drive", "--interface", bus[0], "--channel"]
+    argv += [bus[1], "--axis", str(axis_path), *drive_options(rt, drive_cpu)]
+    return argv if ns is None else ns.command(argv)
 
 
 def _wait_for_boot(bus: can.BusABC, drive_id: int, proc: subprocess.Popen[bytes]) -> None:
@@ -168,34 +161,43 @@ def _wait_for_boot(bus: can.BusABC, drive_id: int, proc: subprocess.Popen[bytes]
 
 @contextlib.contextmanager
 def _process_drive(
-    axis: AxisConfig, rt: RealTimeOptions, drive_cpu: int | None, drive_id: int
+    axis: AxisConfig,
+    rt: RealTimeOptions,
+    drive_cpu: int | None,
+    drive_id: int,
+    socketcan: str | None = None,
 ) -> Iterator[tuple[can.BusABC, subprocess.Popen[bytes], str]]:
-    """The drive process, the bridge's end of the bus and the name of the private network
-    namespace they share (created for the block, removed after it)."""
-    with (
-        tempfile.TemporaryDirectory() as tmp,
-        NetworkNamespace.create() as ns,
-        _entered(ns),
-    ):
+    """The drive process, the bridge's end of the bus and what the bus is: udp_multicast in
+    a private network namespace (created for the block, removed after it), or the SocketCAN
+    interface ``socketcan`` (e.g. vcan0 in a guest with a CAN stack)."""
+    with contextlib.ExitStack() as stack:
+        tmp = stack.enter_context(tempfile.TemporaryDirectory())
+        if socketcan is None:
+            ns: NetworkNamespace | None = stack.enter_context(NetworkNamespace.create())
+            stack.enter_context(_entered(ns))  # type: ignore[arg-type]
+            config = BusConfig(interface="udp_multicast", channel=UDP_GROUP)
+            what = f"udp_multicast in the private network namespace {ns.name}"  # type: ignore[union-attr]
+        else:
+            ns = None
+            config = BusConfig(interface=Interface.SOCKETCAN, channel=socketcan)
+            what = f"SocketCAN {socketcan}"
         axis_path = Path(tmp) / "axis.toml"
         axis_path.write_text(dump_axis(axis), encoding="utf-8")
-        bus = open_bus(BusConfig(interface="udp_multicast", channel=UDP_GROUP))
+        bus = open_bus(config)
+        stack.callback(bus.shutdown)
+        proc = subprocess.Popen(
+            _drive_command(axis_path, rt, drive_cpu, ns, socketcan), stdout=subprocess.DEVNULL
+        )
         try:
-            proc = subprocess.Popen(
-                _drive_command(ns, axis_path, rt, drive_cpu), stdout=subprocess.DEVNULL
-            )
-            try:
-                _wait_for_boot(bus, drive_id, proc)
-                yield bus, proc, ns.name
-            finally:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(10.0)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+            _wait_for_boot(bus, drive_id, proc)
+            yield bus, proc, what
         finally:
-            bus.shutdown()
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(10.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
 
 
 def _queue_moves(bridge: Bridge, params: BridgeParams, seconds: float) -> None:
@@ -306,10 +308,12 @@ def realtime_run(
     drive_cpu: int | None = None,
     spin_s: float | None = None,
     host_beside: bool = True,
+    socketcan: str | None = None,
 ) -> dict[str, object]:
     """One real-time run (module docstring); returns its figures. ``spin_s``: the pacer's
     clock polling before each SYNC (None: its default). ``host_beside``: cyclictest beside
-    the loop where it can run (:func:`host_latency_plan`)."""
+    the loop where it can run (:func:`host_latency_plan`). ``socketcan``: the drive process and
+    the bridge on that SocketCAN interface instead of udp_multicast in a namespace."""
     rt = rt or RealTimeOptions()
     axis = axis_at_rate(axis, rate_hz)
     params = bench_params(axis)
@@ -323,11 +327,11 @@ def realtime_run(
     }
     with contextlib.ExitStack() as stack:
         if placement is DrivePlacement.PROCESS:
-            bus, proc, netns = stack.enter_context(
-                _process_drive(axis, rt, drive_cpu, config.drive_id)
+            bus, proc, what = stack.enter_context(
+                _process_drive(axis, rt, drive_cpu, config.drive_id, socketcan)
             )
             drive_pid: int | None = proc.pid
-            result["bus"] = f"udp_multicast in the private network namespace {netns}"
+            result["bus"] = what
         else:
             from bridge.timing import TimeMode
 
@@ -369,7 +373,8 @@ def realtime_run(
         if drive_pid is not None:
             drive_cpu_s = _proc_cpu_s(drive_pid) - drive_cpu0
             result["drive_cpu_percent_of_one_core"] = 100.0 * drive_cpu_s / result["seconds"]  # type: ignore[operator]
-            result["drive_cpu_us_per_cycle"] = 1e6 * drive_cpu_s / max(1, cycles)
+            ran = int(result["cycles"])  # type: ignore[call-overload]
+            result["drive_cpu_us_per_cycle"] = 1e6 * drive_cpu_s / max(1, ran)
         result["spin_us"] = bridge.pacer.spin_s * 1e6
         result.update(summary(bridge.timing, params.cycle_s))
         result["missed_tpdo_cycles"] = bridge.counters.missed_cycles

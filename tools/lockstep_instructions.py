@@ -1,8 +1,8 @@
 """Instructions per control cycle, counted by valgrind's callgrind (repeatable on a shared
 machine, unlike its clock). Developer tool, not part of the packages.
 
-    python tools/lockstep_instructions.py [--path lockstep|bridge|drive] [--bus virtual|udp]
-                                          [--cycles 2000] [--record] [--python]
+    python tools/lockstep_instructions.py [--path lockstep|bridge|drive] [--bus virtual|udp|vcan]
+                                          [--cycles 2000] [--record] [--python] [--cpu-time]
 
 runs itself under ``valgrind --tool=callgrind --collect-atstart=no
 --toggle-collect=functools_reduce`` on the paper's section X (``hil bench``'s lockstep
@@ -20,11 +20,14 @@ scenario) and prints the instructions per cycle of one path; only what runs insi
   ``SimulatedDrive.take`` on its port);
 
 both after 200 uncounted cycles. ``--bus udp``: the two ends on ``udp_multicast`` in a
-private network namespace (root), the bus of ``hil bench``'s real-time runs; ``virtual``:
+private network namespace (root), the bus of ``hil bench``'s real-time runs; ``vcan``: on
+SocketCAN vcan0 (a kernel with a CAN stack, e.g. a User-mode Linux guest); ``virtual``:
 python-can's in-process bus. ``--python``: the bridge's cycle core as Python (a bridge
 installed without numba). The drive of ``--bus udp`` is served by the same code as its
 process (``plant_sim drive``), in the bridge's process and thread (lockstep), so that one
-callgrind run sees both. Needs valgrind; run from the checkout (``cd`` there first). Works
+callgrind run sees both. ``--cpu-time``: the thread's CPU time of the same sections instead,
+without valgrind (where valgrind cannot run, e.g. in a User-mode Linux guest). Needs
+valgrind otherwise; run from the checkout (``cd`` there first). Works
 on older checkouts too (before the frame ports: the drive's loop then receives messages),
 for before/after figures.
 """
@@ -41,6 +44,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -49,21 +53,56 @@ ROOT = Path(__file__).resolve().parent.parent
 WARM_UP_CYCLES = 200
 
 
-def counted(call: Callable[[], Any]) -> Any:
+def _reduced(call: Callable[[], Any]) -> Any:
     """``call()`` inside ``functools.reduce``: callgrind toggles its count at entry and exit."""
     return functools.reduce(lambda _a, _b: call(), [0, 0])
 
 
+class CpuMeter:
+    """The thread's CPU time in the sections callgrind would count (a call toggles the count
+    on, a nested call off again): ``--cpu-time`` instead of instructions."""
+
+    def __init__(self) -> None:
+        self.total_s = 0.0
+        self._depth = 0
+        self._since = 0.0
+
+    def __call__(self, call: Callable[[], Any]) -> Any:
+        now = time.thread_time()
+        if self._depth % 2 == 0:
+            self._since = now
+        else:
+            self.total_s += now - self._since
+        self._depth += 1
+        try:
+            return call()
+        finally:
+            self._depth -= 1
+            now = time.thread_time()
+            if self._depth % 2 == 0:
+                self.total_s += now - self._since
+            else:
+                self._since = now
+
+
+counted: Callable[[Callable[[], Any]], Any] = _reduced
+
+
 @contextlib.contextmanager
-def _udp_axis(axis: Any, params: Any, bridge_config: Any, wait_s: float) -> Iterator[Any]:
-    """Bridge and drive on two udp_multicast ends in this process (inside a namespace), the
-    drive answering each SYNC from the bridge's thread as its process's loop would."""
+def _two_ends(axis: Any, params: Any, bridge_config: Any, wait_s: float, bus: str) -> Iterator[Any]:
+    """Bridge and drive on two ends of udp_multicast (inside a namespace) or of vcan0 in this
+    process, the drive answering each SYNC from the bridge's thread as its process's loop
+    would."""
     from bridge.node import Bridge
     from bridge.timing import LockstepPacer
     from plant_sim.drive import DriveConfig, SimulatedDrive, TimeMode
-    from virtual_bus.udp import LoopbackUdpBus
+    from virtual_bus import BusConfig, Interface, open_bus
 
-    drive_bus, bridge_bus = LoopbackUdpBus(), LoopbackUdpBus()
+    if bus == "udp":
+        config = BusConfig(interface="udp_multicast")
+    else:
+        config = BusConfig(interface=Interface.SOCKETCAN, channel="vcan0")
+    drive_bus, bridge_bus = open_bus(config), open_bus(config)
     try:
         drive = SimulatedDrive(drive_bus, 2, axis, DriveConfig(time_mode=TimeMode.LOCKSTEP))
         pacer = LockstepPacer(params.cycle_s, wait_s)
@@ -100,7 +139,11 @@ def _udp_axis(axis: Any, params: Any, bridge_config: Any, wait_s: float) -> Iter
 
 
 def _inner(args: argparse.Namespace) -> None:
+    global counted
     sys.path.insert(0, str(ROOT))
+    meter = CpuMeter() if args.cpu_time else None
+    if meter is not None:
+        counted = meter
     import inspect
 
     from bridge.master import DriveSetup
@@ -129,8 +172,8 @@ def _inner(args: argparse.Namespace) -> None:
     wait_s = 30.0
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
-        if args.bus == "udp":
-            sim_context = _udp_axis(axis, bench._params(axis), config, wait_s)
+        if args.bus != "virtual":
+            sim_context = _two_ends(axis, bench._params(axis), config, wait_s, args.bus)
         else:
             sim_context = simulated_axis(
                 axis,
@@ -176,6 +219,8 @@ def _inner(args: argparse.Namespace) -> None:
                 bridge.peer_poll = peer_poll
                 run = _play_quiet(sim, refs, quiet) if bridge_path else play_references(sim, refs)
     print(f"cycles {run.cycles}, missed TPDOs {run.counters.missed}, {run.state.name}")
+    if meter is not None:
+        print(f"CPU µs per {args.path} cycle: {1e6 * meter.total_s / args.cycles:.1f}")
 
 
 def _play_quiet(sim: Any, refs: Any, quiet: Callable[[Any], Any]) -> Any:
@@ -219,9 +264,14 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cycles", type=int, default=2000)
     parser.add_argument("--path", choices=("lockstep", "bridge", "drive"), default="lockstep")
-    parser.add_argument("--bus", choices=("virtual", "udp"), default="virtual")
+    parser.add_argument("--bus", choices=("virtual", "udp", "vcan"), default="virtual")
     parser.add_argument("--record", action="store_true")
     parser.add_argument("--python", action="store_true")
+    parser.add_argument(
+        "--cpu-time",
+        action="store_true",
+        help="the thread's CPU time of the same sections, without valgrind (µs per cycle)",
+    )
     parser.add_argument("--inner", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.cycles < 1:
@@ -230,9 +280,16 @@ def main(argv: list[str]) -> int:
     if args.record and (args.bus != "virtual" or args.path != "lockstep"):
         print("--record: only with --path lockstep --bus virtual", file=sys.stderr)
         return 2
-    if args.inner:
+    if args.inner or (args.cpu_time and args.bus != "udp"):
         _inner(args)
         return 0
+    if args.cpu_time:  # udp: in a namespace of its own, without valgrind
+        sys.path.insert(0, str(ROOT))
+        from virtual_bus.netns import NetworkNamespace
+
+        with NetworkNamespace.create() as ns:
+            argv = [sys.executable, __file__, "--inner", *sys.argv[1:]]
+            return subprocess.run(ns.command(argv), check=False).returncode
     # a kill ends the run like ^C: the namespace and the temporary files are removed
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     with contextlib.ExitStack() as stack:
