@@ -186,10 +186,10 @@ def _value(index: int, doc: str) -> property:
     """A float of the controller's core vector (bridge.cyclecore) as an attribute."""
 
     def get(self: CycleController) -> float:
-        return float(self._v[index])
+        return float(self._vm[index])
 
     def put(self: CycleController, value: float) -> None:
-        self._v[index] = value
+        self._vm[index] = value
 
     return property(get, put, doc=doc)
 
@@ -198,10 +198,10 @@ def _count(index: int, doc: str) -> property:
     """An integer kept in the core vector, as an attribute."""
 
     def get(self: CycleController) -> int:
-        return int(self._v[index])
+        return int(self._vm[index])
 
     def put(self: CycleController, value: int) -> None:
-        self._v[index] = float(value)
+        self._vm[index] = float(value)
 
     return property(get, put, doc=doc)
 
@@ -233,6 +233,9 @@ class CycleController:
         self.stop_message = "none"
         self.params = params
         self._v, self._det = self.core.vectors(params.n)
+        #: the vector as Python reads and writes it fastest (a memoryview of the array the
+        #: compiled core takes: a float in, a float out, no numpy scalar)
+        self._vm = self.core.view(self._v)
         self._build(params)
         self.interpolator = Interpolator(params.cycle_s)
         self._pending: list[Move | Table] = []
@@ -270,6 +273,7 @@ class CycleController:
         if len(self._det) != rcore.detector_state_size(reg.n):
             self._v, self._det = self.core.vectors(reg.n)
             self._v[:] = v
+            self._vm = self.core.view(self._v)
             if hasattr(self, "_formats"):
                 self._make_decoders()  # they write into the vector
         self._limits(params)
@@ -291,7 +295,7 @@ class CycleController:
     def reset_regulator(self) -> None:
         """The regulator back to its initial state: detector empty, beta = 0, lambda = 1."""
         rcore.detector_reset(self._det)
-        self._v[K.S_LAMBDA] = 1.0
+        self._vm[K.S_LAMBDA] = 1.0
 
     def set_scaling(self, scaling: Scaling) -> None:
         """Use ``scaling`` (e.g. the rated torque read from the drive at start-up)."""
@@ -507,7 +511,7 @@ class CycleController:
 
     def _make_decoders(self) -> None:
         """One function per frame that unpacks its payload straight into the vector."""
-        self._decoders = tuple(_decoder(self._v, unpack, at) for unpack, at in self._formats)
+        self._decoders = tuple(_decoder(self._vm, unpack, at) for unpack, at in self._formats)
         #: the loop's decoder of each frame (bridge.node; rebuilt with the vector)
         self.decoders = self._decoders
 
@@ -757,7 +761,7 @@ class CycleController:
     @property
     def switching_factor(self) -> float:
         """lambda of the last cycle (eq. 15; 1 with the regulator off)."""
-        return float(self._v[K.S_LAMBDA])
+        return float(self._vm[K.S_LAMBDA])
 
     motor_position_rad = _value(K.S_MOTOR_POSITION, "motor angle theta_m, rad (6064h)")
     load_position = _value(K.S_LOAD_POSITION, "load position x_l, load units (60E4h:01)")
@@ -776,7 +780,7 @@ class CycleController:
 
     @property
     def _status_in(self) -> bool:
-        return self._v[K.S_STATUS_IN] != 0.0
+        return self._vm[K.S_STATUS_IN] != 0.0
 
     @property
     def error_register(self) -> int:

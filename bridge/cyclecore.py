@@ -219,6 +219,11 @@ class Functions:
         self.step_running = step_running
         self.compiled = compiled
 
+    def view(self, v: Any) -> Any:
+        """``v`` as Python code reads and writes it fastest: a memoryview of a numpy vector
+        (a float in and out, no numpy scalar), a list as it is."""
+        return memoryview(v) if self.compiled else v
+
     def vectors(self, n: int) -> tuple[Any, Any]:
         """A zero vector and a detector state (window ``n + 1``) of the kind these functions
         run fastest on: numpy arrays compiled, lists of floats as Python."""

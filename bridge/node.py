@@ -52,7 +52,14 @@ from virtual_bus.contract import (
 )
 from virtual_bus.formats.axis import AxisKind
 from virtual_bus.frame_guard import FrameFault, FrameGuard
-from virtual_bus.framing import FramePort, MessagePort, OutFrame, ReusedMessage, frame_port
+from virtual_bus.framing import (
+    NOTHING,
+    FramePort,
+    MessagePort,
+    OutFrame,
+    ReusedMessage,
+    frame_port,
+)
 from virtual_bus.realtime import GcBetweenCycles
 from virtual_bus.sdo_server import CheckedSdoServer
 
@@ -423,12 +430,13 @@ class Bridge:
         else:
             self.timing.service_dropped += 1
 
-    def _take(self) -> None:
-        """The frame the port just received: a TPDO of the layout with its mapping's length
-        (what the frame guard admits at that COB-ID; counted as it counts) is decoded where it
-        lies; anything else becomes a message and goes :meth:`_receive`'s way."""
+    def _take(self, cob_id: int) -> None:
+        """The frame the port just received (``cob_id``: what ``receive`` returned): a TPDO
+        of the layout with its mapping's length (what the frame guard admits at that COB-ID;
+        counted as it counts) is decoded where it lies; anything else becomes a message and
+        goes :meth:`_receive`'s way."""
         frames = self.frames
-        slot = self._slot_of.get(frames.cob_id)
+        slot = self._slot_of.get(cob_id)
         if slot is not None and frames.length == self._tpdo_dlc[slot]:
             self.guard.accepted += 1
             self._tpdo(slot, frames.buffer, frames.offset)
@@ -448,13 +456,14 @@ class Bridge:
             self.timing.errors += 1
             log.exception("frame 0x%03X: handling failed; ignored", msg.arbitration_id)
 
-    def _poll(self, timeout: float) -> bool:
-        """Wait at most ``timeout`` s for a frame (0: do not wait); True: one is in the port."""
+    def _poll(self, timeout: float) -> int:
+        """Wait at most ``timeout`` s for a frame (0: do not wait): what the port's
+        ``receive`` returns (NOTHING also after a receive error, counted and logged)."""
         try:
             return self.frames.receive(timeout)
         except (can.CanError, OSError) as exc:
             self._receive_failed(exc)
-            return False
+            return NOTHING
 
     def _receive_failed(self, exc: Exception) -> None:
         self.timing.errors += 1
@@ -481,9 +490,10 @@ class Bridge:
             while True:
                 while service:
                     self._serve_one()
-                if not poll(0.0):
+                cob_id = poll(0.0)
+                if cob_id == NOTHING:
                     break
-                take()
+                take(cob_id)
             gc_control = self.gc_control
             if gc_control is not None and gc_control.due():
                 gc_control.collect()
@@ -508,23 +518,25 @@ class Bridge:
                     gc_control.collect()
                     self._own += self._cpu() - started if keep else 0.0
                     continue
-            if not poll(remaining - spin):
+            cob_id = poll(remaining - spin)
+            if cob_id == NOTHING:
                 continue
             if keep:
                 started = self._cpu()
-                take()
+                take(cob_id)
                 self._own += self._cpu() - started
             else:
-                take()
+                take(cob_id)
         # the last spin_s: poll the clock, not the bus (a blocking wait wakes late, a bus poll
         # is a system call); then take what arrived meanwhile, so that a TPDO of an earlier
         # SYNC is counted late and never used for the next one
         while wall() < due:
             pass
         for _ in range(LATE_READ_FRAMES):  # bounded: a flood of frames cannot hold the SYNC
-            if not poll(0.0):
+            cob_id = poll(0.0)
+            if cob_id == NOTHING:
                 break
-            take()
+            take(cob_id)
 
     def _host_missed(self, due: float) -> bool:
         """Whether the SYNC slot ``due``, found missed now, was missed because the host kept
@@ -605,8 +617,12 @@ class Bridge:
             self.flush_record()
         if keep:
             cpu_window = self._cpu()
-        receive = self.frames.receive
-        take = self._take
+        frames = self.frames
+        receive = frames.receive
+        slot_of = self._slot_of
+        dlc = self._tpdo_dlc
+        decoders = self.controller.decoders
+        guard = self.guard
         busy_poll = self.busy_poll
         full = self._all_slots
         # until all TPDOs are in or the window is over; frames already received when it is
@@ -620,12 +636,23 @@ class Bridge:
                 if late_reads < 0:
                     break
             try:
-                got = receive(remaining if remaining > 0.0 and not busy_poll else 0.0)
+                cob_id = receive(remaining if remaining > 0.0 and not busy_poll else 0.0)
             except (can.CanError, OSError) as exc:
                 self._receive_failed(exc)
-                got = False
-            if got:
-                take()
+                cob_id = NOTHING
+            if cob_id >= 0:
+                slot = slot_of.get(cob_id)
+                if slot is not None and frames.length == dlc[slot]:
+                    # _take and _tpdo for a TPDO in its window, without the two calls
+                    guard.accepted += 1
+                    bit = 1 << slot
+                    if self._present & bit:
+                        self.counters.late += 1  # an extra frame: the newest one is used
+                    self._present |= bit
+                    decoders[slot](frames.buffer, frames.offset)
+                    continue
+            if cob_id != NOTHING:
+                self._take(cob_id)
             elif remaining <= 0.0:
                 break
         self._window_open = False

@@ -20,11 +20,12 @@ only for the rare frame that is not on its cycle: :meth:`FramePort.message`).
   injecting or recording wrapper, vendor interfaces): ``recv``/``send`` with messages, the
   same interface.
 
-After :meth:`FramePort.receive` returned True, :attr:`cob_id` is the frame's 11-bit
-identifier when it is a classic standard data frame (the only kind a CANopen cycle uses) and
--1 for anything else (remote, 29-bit, error, CAN FD: :meth:`FramePort.message` has it);
-:attr:`length` and the payload at ``buffer[offset:offset + length]`` are valid until the next
-receive. :func:`frame_port` picks the port for a bus.
+:meth:`FramePort.receive` returns the frame's 11-bit identifier when it is a classic standard
+data frame (the only kind a CANopen cycle uses), :data:`OTHER` for anything else (remote,
+29-bit, error, CAN FD: :meth:`FramePort.message` has it) and :data:`NOTHING` when no frame
+came; :attr:`cob_id` keeps what it returned, :attr:`length` and the payload at
+``buffer[offset:offset + length]`` are valid until the next receive. :func:`frame_port`
+picks the port for a bus.
 """
 
 from __future__ import annotations
@@ -38,6 +39,10 @@ import can
 
 from virtual_bus.udp import HEAD, MAX_DATAGRAM, TIMESTAMP_END, LoopbackUdpBus, parse_plain
 
+#: What :meth:`FramePort.receive` returns for no frame, and for a frame that is not a classic
+#: standard data frame.
+NOTHING = -2
+OTHER = -1
 #: struct can_frame / canfd_frame sizes (linux/can.h): CAN_MTU, CANFD_MTU.
 CAN_MTU = 16
 CANFD_MTU = 72
@@ -97,9 +102,9 @@ class FramePort:
         #: is stamped; python-can's convention)
         self.timestamp = 0.0
 
-    def receive(self, timeout_s: float | None) -> bool:
-        """Wait at most ``timeout_s`` (0: do not wait; None: forever) for the next frame;
-        True when one is in (see the module docstring)."""
+    def receive(self, timeout_s: float | None) -> int:
+        """Wait at most ``timeout_s`` (0: do not wait; None: forever) for the next frame:
+        its COB-ID, :data:`OTHER` or :data:`NOTHING` (see the module docstring)."""
         raise NotImplementedError
 
     def message(self) -> can.Message:
@@ -127,19 +132,19 @@ class MessagePort(FramePort):
         super().__init__(bus)
         self._msg: can.Message | None = None
 
-    def receive(self, timeout_s: float | None) -> bool:
+    def receive(self, timeout_s: float | None) -> int:
         msg = self.bus.recv(timeout_s)
         if msg is None:
-            return False
+            return NOTHING
         self._msg = msg
-        if msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or msg.is_fd:
-            self.cob_id = -1
-        else:
-            self.cob_id = msg.arbitration_id
-            self.buffer = msg.data
-            self.length = len(msg.data)
         self.timestamp = msg.timestamp
-        return True
+        if msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or msg.is_fd:
+            self.cob_id = OTHER
+            return OTHER
+        self.buffer = data = msg.data
+        self.length = len(data)
+        self.cob_id = cob_id = msg.arbitration_id
+        return cob_id  # type: ignore[no-any-return]
 
     def message(self) -> can.Message:
         assert self._msg is not None, "message() before a frame was received"
@@ -175,8 +180,9 @@ class ReusedMessage(can.Message):
 
 class _SocketPort(FramePort):
     """A port on a socket the bus owns: readiness by ``poll`` (no exception when nothing is
-    there), reads into :attr:`buffer`; with ``stamped`` the kernel's receive time of each
-    frame (``SO_TIMESTAMPNS``, set by the bus) in :attr:`timestamp`, else the wall clock's."""
+    there) or ``select`` (µs timeouts), reads into :attr:`buffer`; with ``stamped`` the
+    kernel's receive time of each frame (``SO_TIMESTAMPNS``, set by the bus) in
+    :attr:`timestamp`, else the wall clock's when it is asked for."""
 
     def __init__(
         self, bus: can.BusABC, sock: socket.socket, stamped: bool, size: int = CANFD_MTU
@@ -186,29 +192,37 @@ class _SocketPort(FramePort):
         self.sock = sock
         self.stamped = stamped
         self.size = 0
-        self._poller = select.poll()
-        self._poller.register(sock, select.POLLIN)
+        self._poll = select.poll()
+        self._poll.register(sock, select.POLLIN)
+        self._ready = self._poll.poll
+        self._recv_into = sock.recv_into
+        self._recvmsg_into = sock.recvmsg_into
         self._buffers = [self.buffer]
+        self._ancillary: list[tuple[int, int, bytes]] = []
+
+    @property  # type: ignore[override]
+    def timestamp(self) -> float:
+        """Receive time of the last frame, s since the epoch (the kernel's if stamped)."""
+        if self.stamped and self._ancillary:
+            seconds, nanoseconds = _TIMESPEC.unpack_from(self._ancillary[0][2])
+            return seconds + nanoseconds * 1e-9  # type: ignore[no-any-return]
+        return time.time()
+
+    @timestamp.setter
+    def timestamp(self, value: float) -> None:  # the base class's initial value
+        pass
 
     def _read(self, timeout_s: float | None) -> bool:
         """One datagram / frame into the buffer (``self.size``), False if none came."""
-        sock = self.sock
         if timeout_s is not None and timeout_s <= 0.0:
-            if not self._poller.poll(0):
+            if not self._ready(0):
                 return False
-        elif not select.select((sock,), (), (), timeout_s)[0]:
+        elif not select.select((self.sock,), (), (), timeout_s)[0]:
             return False
         if self.stamped:
-            size, ancillary, _, _ = sock.recvmsg_into(self._buffers, _ANCILLARY_SIZE)
-            if ancillary:
-                seconds, nanoseconds = _TIMESPEC.unpack_from(ancillary[0][2])
-                self.timestamp = seconds + nanoseconds * 1e-9
-            else:
-                self.timestamp = time.time()
+            self.size, self._ancillary, _, _ = self._recvmsg_into(self._buffers, _ANCILLARY_SIZE)
         else:
-            size = sock.recv_into(self.buffer)
-            self.timestamp = time.time()
-        self.size = size
+            self.size = self._recv_into(self.buffer)
         return True
 
 
@@ -222,17 +236,17 @@ class SocketCanPort(_SocketPort):
         self.offset = 8
         self._channel = getattr(bus, "channel", None)
 
-    def receive(self, timeout_s: float | None) -> bool:
+    def receive(self, timeout_s: float | None) -> int:
         if not self._read(timeout_s):
-            return False
+            return NOTHING
         buf = self.buffer
         (can_id,) = _CAN_ID_UNPACK(buf)  # host byte order
         if self.size == CAN_MTU and not can_id & CAN_FLAGS and buf[4] <= 8:
-            self.cob_id = can_id
             self.length = buf[4]
-        else:
-            self.cob_id = -1
-        return True
+            self.cob_id = can_id
+            return can_id  # type: ignore[no-any-return]
+        self.cob_id = OTHER
+        return OTHER
 
     def message(self) -> can.Message:
         can_id, length, flags, _ = _CAN_HEAD.unpack_from(self.buffer)
@@ -290,29 +304,29 @@ class UdpPort(_SocketPort):
         self._known: dict[int, list[tuple[int, int, int, bytes, bytes]]] = {}
         self._known_count = 0
 
-    def receive(self, timeout_s: float | None) -> bool:
+    def receive(self, timeout_s: float | None) -> int:
         if not self._read(timeout_s):
-            return False
+            return NOTHING
         buffer = self.buffer
-        own = self._own
-        while buffer.find(own, 0, self.size) >= 0:  # looped back by the kernel: not returned
-            if not self._read(0.0):
-                return False
         size = self.size
+        while buffer.find(self._own, 0, size) >= 0:  # looped back: not returned
+            if not self._read(0.0):
+                return NOTHING
+            size = self.size
         for cob_id, length, offset, before, after in self._known.get(size, ()):
             if (
                 buffer.startswith(before, TIMESTAMP_END)
                 and buffer.startswith(after, offset + length)
                 and buffer.startswith(HEAD)
             ):
-                self.cob_id = cob_id
                 self.length = length
                 self.offset = offset
-                return True
+                self.cob_id = cob_id
+                return cob_id
         found = parse_plain(buffer, size)
         if found is None:  # not a plain frame: msgpack and python-can's checks decide
-            self.cob_id = -1
-            return True
+            self.cob_id = OTHER
+            return OTHER
         cob_id, length, offset, _ = found
         self.cob_id = cob_id
         self.length = length
@@ -322,7 +336,7 @@ class UdpPort(_SocketPort):
             after = bytes(buffer[offset + length : size])
             self._known.setdefault(size, []).append((cob_id, length, offset, before, after))
             self._known_count += 1
-        return True
+        return cob_id
 
     def message(self) -> can.Message:
         msg = self._udp.decode_datagram(memoryview(self.buffer)[: self.size], self.timestamp)

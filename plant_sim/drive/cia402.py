@@ -164,6 +164,8 @@ TRANSITIONS: tuple[Transition, ...] = (
 _TABLE: dict[tuple[State402 | None, Trigger], Transition] = {
     (t.source, t.trigger): t for t in TRANSITIONS
 }
+#: (state, controlword) -> whether repeating that controlword there changes nothing
+_STEADY: dict[tuple[State402, int], bool] = {}
 
 
 def decode_command(controlword: int, previous_controlword: int) -> Command | None:
@@ -229,8 +231,12 @@ class StateMachine:
         controlword with every set point)."""
         if controlword != self.controlword:
             return False
-        command = decode_command(controlword, controlword)
-        return command is None or (self.state, command) not in _TABLE
+        key = (self.state, controlword)
+        steady = _STEADY.get(key)
+        if steady is None:
+            command = decode_command(controlword, controlword)
+            steady = _STEADY[key] = command is None or (self.state, command) not in _TABLE
+        return steady
 
     def command(
         self,

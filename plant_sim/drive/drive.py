@@ -42,7 +42,7 @@ from canopen.network import NodeScanner
 from virtual_bus.contract import NMT_COB_ID, NMT_LENGTH, SDO_LENGTH, SdoAbort
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.frame_guard import FrameFault, FrameGuard
-from virtual_bus.framing import FramePort, OutFrame, frame_port
+from virtual_bus.framing import NOTHING, FramePort, OutFrame, frame_port
 
 from ..physics.model import AxisPlant
 from . import od as O
@@ -67,6 +67,9 @@ from .servo import ServoAxis
 logger = logging.getLogger(__name__)
 
 __all__ = ["DriveConfig", "SimulatedDrive", "TimeMode", "warm_up"]
+
+#: The services whose COB-IDs canopen's NodeScanner notes a node from.
+_SCANNED = frozenset(NodeScanner.SERVICES)
 
 
 def warm_up(axis: AxisConfig) -> None:
@@ -298,57 +301,58 @@ class SimulatedDrive:
 
             def poll() -> int:
                 n = 0
-                while port.receive(0.0):
-                    take(port, handle)
+                while (cob_id := port.receive(0.0)) != NOTHING:
+                    take(cob_id, port, handle)
                     n += 1
                 return n
 
             yield poll
 
-    def take(self, port: FramePort, handle: Callable[[can.Message], None]) -> None:
+    def take(self, cob_id: int, port: FramePort, handle: Callable[[can.Message], None]) -> bool:
         """One frame the caller's thread received on the drive's end of the bus (``port``,
-        :meth:`receiving_here`): a SYNC or an RPDO goes straight to the drive's handler, as
-        the frame guard and canopen's dispatch would hand it over (counted as the guard
-        counts) when nothing but the drive listens to it; anything else as a message to
-        ``handle``."""
-        if port.cob_id >= 0 and self._direct(port.cob_id, port.buffer, port.offset, port.length):
-            return
+        :meth:`receiving_here`; ``cob_id``: what its ``receive`` returned): a SYNC or an RPDO
+        goes straight to the drive's handler, as the frame guard and canopen's dispatch would
+        hand it over (counted as the guard counts) when nothing but the drive listens to it;
+        anything else as a message to ``handle``. True when a SYNC cycle ran."""
+        if cob_id >= 0:
+            network = self._network
+            subscribers = network.subscribers.get(cob_id)
+            if subscribers is not None and len(subscribers) == 1 and len(network.listeners) == 1:
+                callback = subscribers[0]
+                if callback is self._on_sync_frame_cb:
+                    if port.length <= 1:
+                        self.guard.accepted += 1
+                        self._sync_direct(cob_id)
+                        return True
+                elif callback is self._on_rpdo_frame_cb and self._rpdo_direct(cob_id, port):
+                    return False
+        syncs = self._sync_count
         handle(port.message())
+        return self._sync_count != syncs
 
-    def _direct(self, cob_id: int, buffer: bytearray, offset: int, length: int) -> bool:
-        """Handle a SYNC (0 or 1 byte) or an RPDO (NMT Operational) without a message; False
-        (nothing done) where the guard or canopen's dispatch would do more than call the
-        drive's own callback: another subscriber or listener, a frame the guard refuses, a
-        node the network's scanner would note."""
-        network = self._network
-        subscribers = network.subscribers.get(cob_id)
-        if subscribers is None or len(subscribers) != 1 or len(network.listeners) != 1:
-            return False
-        callback = subscribers[0]
-        if callback is self._on_sync_frame_cb:
-            if length > 1:
-                return False
-            self.guard.accepted += 1
-            try:
-                with self._lock:
-                    self._errors.clear(EMCY_SYNC_LENGTH)
-                    self.on_sync()
-            except Exception as exc:  # as the callback's wrapper: kept for check()
-                logger.exception("drive %d: callback for 0x%03X failed", self.node_id, cob_id)
-                self._callback_errors.append(exc)
-            return True
-        if callback is self._on_rpdo_frame_cb:
-            node = cob_id & 0x7F
-            scanned = (cob_id & 0x780) in NodeScanner.SERVICES and node != 0
-            if self._nmt.state is not NmtState.OPERATIONAL or (
-                scanned and node not in network.scanner.nodes
-            ):
-                return False
-            self.guard.accepted += 1
+    def _sync_direct(self, cob_id: int) -> None:
+        """A SYNC of 0 or 1 byte, admitted: what its callback does (and its wrapper)."""
+        try:
             with self._lock:
-                self._pdo.receive(cob_id, memoryview(buffer)[offset : offset + length])
-            return True
-        return False
+                self._errors.clear(EMCY_SYNC_LENGTH)
+                self.on_sync()
+        except Exception as exc:  # as the callback's wrapper: kept for check()
+            logger.exception("drive %d: callback for 0x%03X failed", self.node_id, cob_id)
+            self._callback_errors.append(exc)
+
+    def _rpdo_direct(self, cob_id: int, port: FramePort) -> bool:
+        """An RPDO in NMT Operational: kept for the next SYNC; False (nothing done) where
+        the guard refuses it or the network's scanner would note its node."""
+        if self._nmt.state is not NmtState.OPERATIONAL:
+            return False
+        node = cob_id & 0x7F
+        if (cob_id & 0x780) in _SCANNED and node and node not in self._network.scanner.nodes:
+            return False
+        self.guard.accepted += 1
+        offset = port.offset
+        with self._lock:
+            self._pdo.receive(cob_id, memoryview(port.buffer)[offset : offset + port.length])
+        return True
 
     def stop(self) -> None:
         """Leave the bus: heartbeat, subscriptions and (own) notifier thread stop. The bus
@@ -485,7 +489,10 @@ class SimulatedDrive:
         with self._lock:
             operational = self._nmt.state is NmtState.OPERATIONAL
             self._rpdo_seen = False
-            if operational:
+            if operational and (applied := self._pdo.latch_quiet(self._unchanged)) is not None:
+                if applied:  # the set point a master repeats every SYNC: stored, no hook
+                    self._rpdo_arrived()
+            elif operational:
                 result = self._pdo.latch(before_apply=self._rpdo_arrived)
                 if result.short_frames:
                     self._errors.set(EMCY_PDO_LENGTH, emcy_data_int32(result.short_frames[0]))
@@ -499,6 +506,12 @@ class SimulatedDrive:
             servo.advance()
             self._sync_count += 1
             self._heartbeat.tick(self._sync_count * self._cycle_us)
+
+    def _unchanged(self, key: O.ObjectKey, value: int) -> bool:
+        """Whether writing ``value`` to ``key`` would do nothing beyond storing it: the
+        controlword the CiA 402 machine already has, with no transition
+        (:meth:`ServoAxis.controlword_unchanged`)."""
+        return key == O.CONTROLWORD and self._servo.controlword_unchanged(value)
 
     def _rpdo_arrived(self) -> None:
         self._rpdo_seen = True

@@ -384,6 +384,20 @@ class ObjectTable:
             return None
         return packer.format.lstrip("<>=!@")
 
+    def quiet(self, key: ObjectKey) -> bool:
+        """Whether a write of ``key`` is a range check and a store and nothing else (no
+        ``validate``, no ``changed`` hook)."""
+        return key not in self._validators and key not in self._changed
+
+    def limits(self, key: ObjectKey) -> tuple[int | None, int | None]:
+        """The EDS limits :meth:`check_range` applies to ``key`` (None: none)."""
+        var = self._vars[key]
+        return var.min, var.max
+
+    def changed_hook(self, key: ObjectKey) -> ChangedFn | None:
+        """The ``changed`` hook of ``key`` (None: none)."""
+        return self._changed.get(key)
+
     def check_range(self, key: ObjectKey, value: int) -> None:
         var = self._vars[key]
         if var.min is not None and value < var.min:

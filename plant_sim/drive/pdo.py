@@ -134,6 +134,38 @@ class _Plan:
     layout: struct.Struct | None  # None: encode object by object
     size: int  # bytes of the mapping
     pack: Callable[[], bytes] | None = None  # the payload now (layout and getters; None: no layout)
+    #: RPDO: store its values when the latch only stores (see PdoEngine.latch_quiet)
+    quiet: Callable[[bytes, Callable[[ObjectKey, int], bool]], bool] | None = None
+
+
+def _quiet_writer(
+    table: ObjectTable, keys: tuple[ObjectKey, ...], layout: struct.Struct
+) -> Callable[[bytes, Callable[[ObjectKey, int], bool]], bool] | None:
+    """``write(data, unchanged)`` for a compiled RPDO of two objects (the usual set point
+    mapping): if both values are in their objects' range and each object has no hooks or
+    ``unchanged(key, value)``, store them and return True; else False, nothing stored. None
+    for other mappings (the general latch)."""
+    if len(keys) != 2:
+        return None
+    unpack = layout.unpack_from
+    k0, k1 = keys
+    (lo0, hi0), (lo1, hi1) = table.limits(k0), table.limits(k1)
+    plain0, plain1 = table.quiet(k0), table.quiet(k1)
+    store = table.store
+
+    def write(data: bytes, unchanged: Callable[[ObjectKey, int], bool]) -> bool:
+        v0, v1 = unpack(data)
+        if (lo0 is not None and v0 < lo0) or (hi0 is not None and v0 > hi0):
+            return False
+        if (lo1 is not None and v1 < lo1) or (hi1 is not None and v1 > hi1):
+            return False
+        if not (plain0 or unchanged(k0, v0)) or not (plain1 or unchanged(k1, v1)):
+            return False
+        store(k0, v0)
+        store(k1, v1)
+        return True
+
+    return write
 
 
 def _packer(layout: struct.Struct, getters: tuple[Callable[[], int], ...]) -> Callable[[], bytes]:
@@ -374,6 +406,9 @@ class PdoEngine:
             layout,
             sum(m.bits for m in mapping) // 8,
             None if layout is None else _packer(layout, getters),
+            None
+            if layout is None or ch.kind is not PdoKind.RECEIVE
+            else _quiet_writer(self._table, keys, layout),
         )
 
     def _compile(self) -> None:
@@ -463,6 +498,28 @@ class PdoEngine:
                     logger.warning("%s: %s", plan.channel.name, exc)
             result.applied += 1
         return result
+
+    def latch_quiet(self, unchanged: Callable[[ObjectKey, int], bool]) -> bool | None:
+        """The latch of a SYNC at which it only stores values: at most one RPDO pending, of a
+        compiled mapping and its full length, whose every value is in its object's range and
+        either goes to an object without hooks or is one ``unchanged(key, value)`` says its
+        hooks would do nothing with (the controlword a master repeats). Then the values are
+        stored, as :meth:`latch` would write them; True: an RPDO was applied, False: none was
+        pending. None: not such a SYNC, nothing done (use :meth:`latch`)."""
+        pending = self._pending
+        if not pending:
+            return False
+        plans = self._rx_plans
+        if len(pending) != 1 or plans is None:
+            return None
+        ((number, data),) = pending.items()
+        plan = plans.get(number)
+        if plan is None or plan.quiet is None or len(data) < plan.size:
+            return None
+        if not plan.quiet(data, unchanged):
+            return None
+        pending.clear()
+        return True
 
     def _decode_each(self, plan: _Plan, data: bytes) -> list[int]:
         values = []

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import can
 
 from virtual_bus.formats.axis import AxisConfig
+from virtual_bus.framing import NOTHING
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 from .cia402 import State402
@@ -259,7 +260,6 @@ def _loop(
     cycle_s = config.axis.control.position_cycle
     watch = SyncWatch(cycle_s, config.poll_lead_s, SYNC_HOLD_FRACTION * cycle_s)
     busy_poll = config.realtime.busy_poll
-    syncs = drive.sync_count
     next_check = wall() + interval
     while not stop.is_set():
         now = wall()
@@ -267,20 +267,20 @@ def _loop(
             drive.check()
             next_check = now + interval
         try:
-            if not port.receive(watch.wait_s(now, interval) if busy_poll else interval):
+            cob_id = port.receive(watch.wait_s(now, interval) if busy_poll else interval)
+            if cob_id == NOTHING:
                 continue
-            received = wall()
-            # the frame's own timestamp (epoch s: the kernel's receive time on udp_multicast
-            # and socketcan) says how long it waited for this thread; a plausible age dates
-            # the SYNC back to its arrival, so a late wake-up does not shift the next window
-            age = epoch() - port.timestamp
-            take(port, handle)
+            received, received_epoch = wall(), epoch()
+            synced = take(cob_id, port, handle)
         except (can.CanError, OSError) as exc:  # e.g. a datagram that is no CAN frame
             counts.receive_errors += 1
             logger.warning("drive %d: receive failed, frame ignored: %s", drive.node_id, exc)
             continue
-        if drive.sync_count != syncs:  # a SYNC: answered, the physics stepped
-            syncs = drive.sync_count
+        if synced:  # a SYNC: answered, the physics stepped
+            # the frame's own timestamp (epoch s: the kernel's receive time on udp_multicast
+            # and socketcan) says how long it waited for this thread; a plausible age dates
+            # the SYNC back to its arrival, so a late wake-up does not shift the next window
+            age = received_epoch - port.timestamp
             watch.synced(received - age if 0.0 <= age < cycle_s else received)
             if gc_control is not None and gc_control.due():
                 gc_control.collect()

@@ -378,6 +378,13 @@ class ServoAxis:
         return True
 
     # --- state machine glue --------------------------------------------------------------------
+    def controlword_unchanged(self, controlword: int) -> bool:
+        """Writing ``controlword`` to 6040h changes nothing (the hook below returns at once):
+        a master repeats it with every set point."""
+        return self._table.changed_hook(O.CONTROLWORD) == self._controlword_changed and (
+            self.sm.unchanged_by(controlword)
+        )
+
     def _controlword_changed(self, controlword: int) -> None:
         if self.sm.unchanged_by(controlword):  # the RPDO repeats it every SYNC
             return

@@ -19,7 +19,7 @@ import pytest
 from can.interfaces.udp_multicast.utils import pack_message, unpack_message
 
 from virtual_bus.config import BusConfig, Interface
-from virtual_bus.framing import MessagePort, SocketCanPort, frame_port
+from virtual_bus.framing import NOTHING, OTHER, MessagePort, SocketCanPort, frame_port
 from virtual_bus.netns import NetworkNamespace
 from virtual_bus.open import open_bus
 from virtual_bus.udp import own_frame_filter, parse_plain
@@ -93,16 +93,16 @@ def test_a_message_port_reads_python_cans_virtual_bus() -> None:
         assert isinstance(port, MessagePort)
         theirs.send(can.Message(arbitration_id=0x182, data=b"\1\2\3", is_extended_id=False))
         theirs.send(can.Message(arbitration_id=0x702, is_remote_frame=True, is_extended_id=False))
-        assert port.receive(1.0) and port.cob_id == 0x182 and port.length == 3
+        assert port.receive(1.0) == 0x182 == port.cob_id and port.length == 3
         assert bytes(port.buffer[port.offset : port.offset + 3]) == b"\1\2\3"
-        assert port.receive(1.0) and port.cob_id == -1
+        assert port.receive(1.0) == OTHER == port.cob_id
         assert port.message().is_remote_frame
         frame = port.frame(0x202, 6)
         frame.buffer[frame.offset : frame.offset + 6] = b"abcdef"
         port.send(frame)
         got = theirs.recv(1.0)
         assert got is not None and (got.arbitration_id, bytes(got.data)) == (0x202, b"abcdef")
-        assert not port.receive(0.0)
+        assert port.receive(0.0) == NOTHING
     finally:
         ours.shutdown()
         theirs.shutdown()
@@ -115,7 +115,7 @@ import can
 from can.interfaces.udp_multicast import UdpMulticastBus
 from can.interfaces.udp_multicast.utils import pack_message
 
-from virtual_bus.framing import UdpPort, frame_port
+from virtual_bus.framing import NOTHING, OTHER, UdpPort, frame_port
 from virtual_bus.netns import UDP_GROUP
 from virtual_bus.udp import LoopbackUdpBus
 
@@ -136,11 +136,11 @@ try:
             sent.append([cob_id, payload[: cob_id % 9].hex()])
     got = []
     for _ in sent:
-        assert port.receive(5.0)
+        assert port.receive(5.0) >= 0
         got.append([port.cob_id, bytes(port.buffer[port.offset:port.offset + port.length]).hex()])
     out["plain"] = got == sent
     theirs.send(can.Message(arbitration_id=0x1ABCDE01, data=b"\x09", is_extended_id=True))
-    assert port.receive(5.0)
+    assert port.receive(5.0) == OTHER
     m = port.message()
     out["extended"] = [port.cob_id, m.arbitration_id, m.is_extended_id, m.data.hex()]
     # frames our port sends are python-can's format, with our token as channel
@@ -168,13 +168,13 @@ try:
     # a datagram that is no frame still arrives, and is python-can's error
     plain = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     plain.sendto(b"\x93not a frame", ours.destination)
-    assert port.receive(5.0) and port.cob_id == -1
+    assert port.receive(5.0) == OTHER
     try:
         port.message()
         out["garbage"] = "accepted"
     except can.CanOperationError as exc:
         out["garbage"] = type(exc).__name__
-    out["nothing_left"] = not port.receive(0.05)
+    out["nothing_left"] = port.receive(0.05) == NOTHING
 finally:
     ours.shutdown()
     theirs.shutdown()
@@ -208,12 +208,12 @@ def test_the_socketcan_port_against_python_cans_socketcan_bus() -> None:
         theirs.send(can.Message(arbitration_id=0x182, data=b"\1\2\3\4", is_extended_id=False))
         theirs.send(can.Message(arbitration_id=0x1ABCDE01, data=b"\5", is_extended_id=True))
         theirs.send(can.Message(arbitration_id=0x702, is_remote_frame=True, is_extended_id=False))
-        assert port.receive(2.0) and (port.cob_id, port.length) == (0x182, 4)
+        assert port.receive(2.0) == 0x182 and port.length == 4
         assert bytes(port.buffer[port.offset : port.offset + 4]) == b"\1\2\3\4"
-        assert port.receive(2.0) and port.cob_id == -1
+        assert port.receive(2.0) == OTHER
         m = port.message()
         assert (m.arbitration_id, m.is_extended_id, bytes(m.data)) == (0x1ABCDE01, True, b"\5")
-        assert port.receive(2.0) and port.cob_id == -1 and port.message().is_remote_frame
+        assert port.receive(2.0) == OTHER and port.message().is_remote_frame
         frame = port.frame(0x202, 6)
         frame.buffer[frame.offset : frame.offset + 6] = b"\x0f\x00\x01\x02\x03\x04"
         port.send(frame)
@@ -224,7 +224,7 @@ def test_the_socketcan_port_against_python_cans_socketcan_bus() -> None:
             False,
             b"\x0f\x00\x01\x02\x03\x04",
         )
-        assert not port.receive(0.0)  # a CAN socket does not receive its own frames
+        assert port.receive(0.0) == NOTHING  # a CAN socket does not receive its own frames
     finally:
         ours.shutdown()
         theirs.shutdown()

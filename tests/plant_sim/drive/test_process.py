@@ -362,8 +362,11 @@ def test_the_next_window_is_dated_from_the_syncs_arrival_not_from_a_late_wake_up
         def check(self) -> None:
             pass
 
-        def take(self, port: MessagePort, handle: Callable[[can.Message], None]) -> None:
+        def take(
+            self, cob_id: int, port: MessagePort, handle: Callable[[can.Message], None]
+        ) -> bool:
             handle(port.message())
+            return True
 
     drive = Drive()
 
