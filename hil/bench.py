@@ -95,6 +95,27 @@ def _floors_line(r: dict[str, Any]) -> str:
     return line + f"; binding floor: {r['binding_floor']}"
 
 
+#: Simulated seconds of section X the solve_ivp reference runs beside the lockstep figures.
+REFERENCE_S = 1.0
+
+
+def reference_run(axis: AxisConfig, seconds: float = REFERENCE_S) -> dict[str, float]:
+    """The host's speed in the same run as the lockstep figures: ``seconds`` of section X
+    through plant_sim's ``scipy.integrate.solve_ivp`` reference (the one ``plant_sim bench``
+    times beside the kernel; SciPy's integrator, not this project's code). Lockstep cycles
+    per second divided by its real-time factor changes with the project, not with the host."""
+    from plant_sim.physics.reference import simulate_reference
+    from plant_sim.physics.simulate import References
+
+    refs = SectionX().references(axis)
+    n = round(seconds / axis.control.position_cycle)
+    part = References(refs.position[:n], refs.speed[:n], refs.disturbance_nm[:n])
+    wall0 = time.perf_counter()
+    simulate_reference(axis, part)
+    wall = time.perf_counter() - wall0
+    return {"simulated_s": seconds, "wall_s": wall, "realtime_factor": seconds / wall}
+
+
 def _placement(drive: str) -> DrivePlacement:
     why = can_run_process_drive()
     if drive == "thread":
@@ -152,6 +173,20 @@ def run_bench(
                 f"{6000 / r['cycles_per_s']:.2f} s), CPU {r['cpu_us_per_cycle']:.0f} µs/cycle, "
                 f"missed TPDOs {r['missed_tpdos']}"
             )
+        ref = reference_run(axis)
+        results["reference"] = ref
+        for key in ("lockstep", "lockstep_recording"):
+            lock = results[key]
+            lock["cycles_per_s_per_reference_factor"] = (  # type: ignore[index]
+                lock["cycles_per_s"] / ref["realtime_factor"]  # type: ignore[index]
+            )
+        print(
+            f"reference in the same run: solve_ivp (scipy) {ref['simulated_s']:g} s of section "
+            f"X at {ref['realtime_factor']:.2f}x real time; lockstep per unit of it: "
+            f"{results['lockstep']['cycles_per_s_per_reference_factor']:.0f} and "  # type: ignore[index]
+            f"{results['lockstep_recording']['cycles_per_s_per_reference_factor']:.0f} "  # type: ignore[index]
+            "(host-independent: the project's speed)"
+        )
     if seconds is not None:
         if drive_cpu is None and placement is DrivePlacement.PROCESS:
             drive_cpu = _other_cpu(rt.cpu)

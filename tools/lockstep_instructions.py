@@ -41,6 +41,7 @@ import argparse
 import contextlib
 import dataclasses
 import functools
+import gc
 import operator
 import os
 import re
@@ -202,6 +203,11 @@ def _inner(args: argparse.Namespace) -> None:
                 bus_log_path=tmp_path / "bus.log" if args.record else None,
             )
         with sim_context as sim:
+            # the start-up's objects out of the collector's reach, as --freeze-gc does: a
+            # full collection over them (numba, scipy: some 10^7 instructions) would land in
+            # a counted cycle now and then
+            gc.collect()
+            gc.freeze()
             if args.path == "lockstep":
                 run = counted(lambda: play_references(sim, refs))
             else:

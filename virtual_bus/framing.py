@@ -213,8 +213,16 @@ class _SocketPort(FramePort):
         pass
 
     def _read(self, timeout_s: float | None) -> bool:
-        """One datagram / frame into the buffer (``self.size``), False if none came."""
-        if timeout_s is not None and timeout_s <= 0.0:
+        """One datagram / frame into the buffer (``self.size``), False if none came. A wait
+        of a millisecond or more is a ``poll`` (milliseconds, cheaper), a shorter one
+        ``select`` (microseconds: the wait for a SYNC's instant ends on time)."""
+        if timeout_s is None:
+            if not self._ready(None):
+                return False
+        elif timeout_s >= 0.001:
+            if not self._ready(int(timeout_s * 1000.0)):  # down: never later than asked
+                return False
+        elif timeout_s <= 0.0:
             if not self._ready(0):
                 return False
         elif not select.select((self.sock,), (), (), timeout_s)[0]:
@@ -298,7 +306,7 @@ class UdpPort(_SocketPort):
         super().__init__(bus, bus.udp_socket, stamped, MAX_DATAGRAM)
         self._udp = bus
         self._own = bus.own_marker
-        self._destination = bus.destination
+        self._send = bus.sender.send  # connected to the group: no address to parse per frame
         # by datagram size: (COB-ID, length, payload offset, bytes from the end of the
         # timestamp to the payload, bytes after the payload)
         self._known: dict[int, list[tuple[int, int, int, bytes, bytes]]] = {}
@@ -308,21 +316,23 @@ class UdpPort(_SocketPort):
         if not self._read(timeout_s):
             return NOTHING
         buffer = self.buffer
-        size = self.size
-        while buffer.find(self._own, 0, size) >= 0:  # looped back: not returned
-            if not self._read(0.0):
-                return NOTHING
+        while True:
             size = self.size
-        for cob_id, length, offset, before, after in self._known.get(size, ()):
-            if (
-                buffer.startswith(before, TIMESTAMP_END)
-                and buffer.startswith(after, offset + length)
-                and buffer.startswith(HEAD)
-            ):
-                self.length = length
-                self.offset = offset
-                self.cob_id = cob_id
-                return cob_id
+            # a kind of frame of another bus read before (its token is in ``before``)
+            for cob_id, length, offset, before, after in self._known.get(size, ()):
+                if (
+                    buffer.startswith(before, TIMESTAMP_END)
+                    and buffer.startswith(after, offset + length)
+                    and buffer.startswith(HEAD)
+                ):
+                    self.length = length
+                    self.offset = offset
+                    self.cob_id = cob_id
+                    return cob_id
+            if buffer.find(self._own, 0, size) < 0:
+                break
+            if not self._read(0.0):  # ours, looped back (the kernel's filter drops most)
+                return NOTHING
         found = parse_plain(buffer, size)
         if found is None:  # not a plain frame: msgpack and python-can's checks decide
             self.cob_id = OTHER
@@ -349,7 +359,7 @@ class UdpPort(_SocketPort):
         return OutFrame(cob_id, length, wire, offset, wire=wire)
 
     def send(self, frame: OutFrame) -> None:
-        self.sock.sendto(frame.wire, self._destination)  # type: ignore[arg-type]
+        self._send(frame.wire)
 
 
 def frame_port(bus: can.BusABC, *, stamped: bool = False) -> FramePort:

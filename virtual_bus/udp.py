@@ -244,6 +244,15 @@ class LoopbackUdpBus(UdpMulticastBus):
         #: the kernel drops this bus's own frames before they reach its socket (a BPF filter;
         #: False: refused here, they are dropped after they are read)
         self.filters_own_frames = attach_own_frame_filter(self._socket, token)
+        #: a socket connected to the group, for a loop's frames (send without an address)
+        self.sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            ttl = self._socket.getsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL)
+            self.sender.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, ttl)
+            self.sender.connect(self._destination)
+        except OSError:
+            self.sender.close()
+            raise
 
     # --- what a loop without a message per frame needs (virtual_bus.framing.UdpPort) --------
     @property
@@ -305,6 +314,10 @@ class LoopbackUdpBus(UdpMulticastBus):
                 raise can.CanTimeoutError()
         else:
             self._multicast.send(packed, timeout)
+
+    def shutdown(self) -> None:
+        self.sender.close()
+        super().shutdown()
 
     def _pack(self, msg: can.Message) -> bytes:
         return msgpack.packb(  # type: ignore[no-any-return]
