@@ -196,13 +196,14 @@ class _SocketPort(FramePort):
         self._poll.register(sock, select.POLLIN)
         self._ready = self._poll.poll
         self._recv_into = sock.recv_into
-        self._recvmsg_into = sock.recvmsg_into
         self._buffers = [self.buffer]
         self._ancillary: list[tuple[int, int, bytes]] = []
 
     @property  # type: ignore[override]
     def timestamp(self) -> float:
-        """Receive time of the last frame, s since the epoch (the kernel's if stamped)."""
+        """Receive time of the last frame, s since the epoch: the kernel's if stamped (read
+        with every frame by ``recvmsg``, which also formats the sender's address: ~6,000
+        instructions a frame, callgrind), else the wall clock's now."""
         if self.stamped and self._ancillary:
             seconds, nanoseconds = _TIMESPEC.unpack_from(self._ancillary[0][2])
             return seconds + nanoseconds * 1e-9  # type: ignore[no-any-return]
@@ -228,7 +229,9 @@ class _SocketPort(FramePort):
         elif not select.select((self.sock,), (), (), timeout_s)[0]:
             return False
         if self.stamped:
-            self.size, self._ancillary, _, _ = self._recvmsg_into(self._buffers, _ANCILLARY_SIZE)
+            self.size, self._ancillary, _, _ = self.sock.recvmsg_into(
+                self._buffers, _ANCILLARY_SIZE
+            )
         else:
             self.size = self._recv_into(self.buffer)
         return True

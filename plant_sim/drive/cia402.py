@@ -164,8 +164,6 @@ TRANSITIONS: tuple[Transition, ...] = (
 _TABLE: dict[tuple[State402 | None, Trigger], Transition] = {
     (t.source, t.trigger): t for t in TRANSITIONS
 }
-#: (state, controlword) -> whether repeating that controlword there changes nothing
-_STEADY: dict[tuple[State402, int], bool] = {}
 
 
 def decode_command(controlword: int, previous_controlword: int) -> Command | None:
@@ -204,6 +202,10 @@ class StateMachine:
     def __init__(self) -> None:
         self.state = _TABLE[(None, Event.POWER_ON)].target
         self.controlword = 0
+        # unchanged_by's last answer (a master repeats one controlword in one state)
+        self._steady_state: State402 | None = None
+        self._steady_word = -1
+        self._steady = False
 
     def controlword_written(
         self,
@@ -231,11 +233,12 @@ class StateMachine:
         controlword with every set point)."""
         if controlword != self.controlword:
             return False
-        key = (self.state, controlword)
-        steady = _STEADY.get(key)
-        if steady is None:
-            command = decode_command(controlword, controlword)
-            steady = _STEADY[key] = command is None or (self.state, command) not in _TABLE
+        state = self.state
+        if state is self._steady_state and controlword == self._steady_word:
+            return self._steady  # the last answer: the same controlword in the same state
+        command = decode_command(controlword, controlword)
+        steady = command is None or (state, command) not in _TABLE
+        self._steady_state, self._steady_word, self._steady = state, controlword, steady
         return steady
 
     def command(

@@ -70,6 +70,10 @@ __all__ = ["DriveConfig", "SimulatedDrive", "TimeMode", "warm_up"]
 
 #: The services whose COB-IDs canopen's NodeScanner notes a node from.
 _SCANNED = frozenset(NodeScanner.SERVICES)
+# Enum members the per-SYNC code compares with, as module globals: CPython 3.11's EnumType has
+# a __getattr__, so reading a member off its class costs ~1,000 instructions, a global ~50
+# (callgrind).
+_OPERATIONAL = NmtState.OPERATIONAL
 
 
 def warm_up(axis: AxisConfig) -> None:
@@ -271,7 +275,9 @@ class SimulatedDrive:
             for listener in listeners:
                 listener.on_message_received(msg)
 
-        self.port = frame_port(bus, stamped=True)
+        # no kernel timestamp per frame (recvmsg: ~6,000 instructions each): the loop that
+        # dates its SYNC from it polls around the SYNC (--busy-poll) and reads it at once
+        self.port = frame_port(bus)
         self._tx_frames.clear()
         try:
             yield handle
@@ -343,7 +349,7 @@ class SimulatedDrive:
     def _rpdo_direct(self, cob_id: int, port: FramePort) -> bool:
         """An RPDO in NMT Operational: kept for the next SYNC; False (nothing done) where
         the guard refuses it or the network's scanner would note its node."""
-        if self._nmt.state is not NmtState.OPERATIONAL:
+        if self._nmt.state is not _OPERATIONAL:
             return False
         node = cob_id & 0x7F
         if (cob_id & 0x780) in _SCANNED and node and node not in self._network.scanner.nodes:
@@ -487,7 +493,7 @@ class SimulatedDrive:
         """One SYNC: latch RPDOs, supervise, send TPDOs, run the physics one position cycle
         (what the drive does on a SYNC frame; callable directly in unit tests)."""
         with self._lock:
-            operational = self._nmt.state is NmtState.OPERATIONAL
+            operational = self._nmt.state is _OPERATIONAL
             self._rpdo_seen = False
             if operational and (applied := self._pdo.latch_quiet(self._unchanged)) is not None:
                 if applied:  # the set point a master repeats every SYNC: stored, no hook
@@ -593,7 +599,7 @@ class SimulatedDrive:
 
     def _on_rpdo_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._lock:
-            if self._nmt.state is NmtState.OPERATIONAL:
+            if self._nmt.state is _OPERATIONAL:
                 self._pdo.receive(can_id, bytes(data))
 
     def _nmt_state(self, old: NmtState, new: NmtState) -> None:

@@ -277,9 +277,10 @@ def _loop(
             logger.warning("drive %d: receive failed, frame ignored: %s", drive.node_id, exc)
             continue
         if synced:  # a SYNC: answered, the physics stepped
-            # the frame's own timestamp (epoch s: the kernel's receive time on udp_multicast
-            # and socketcan) says how long it waited for this thread; a plausible age dates
-            # the SYNC back to its arrival, so a late wake-up does not shift the next window
+            # the frame's own timestamp (epoch s: the kernel's receive time where the port
+            # has it, python-can's messages) says how long it waited for this thread; a
+            # plausible age dates the SYNC back to its arrival, so a late wake-up does not
+            # shift the next window (a raw socket's port: the time it was read, age <= 0)
             age = received_epoch - port.timestamp
             watch.synced(received - age if 0.0 <= age < cycle_s else received)
             if gc_control is not None and gc_control.due():
