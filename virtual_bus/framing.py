@@ -37,7 +37,7 @@ import time
 
 import can
 
-from virtual_bus.udp import HEAD, MAX_DATAGRAM, TIMESTAMP_END, LoopbackUdpBus, parse_plain
+from virtual_bus.udp import MAX_DATAGRAM, LoopbackUdpBus, parse_plain
 
 #: What :meth:`FramePort.receive` returns for no frame, and for a frame that is not a classic
 #: standard data frame.
@@ -294,11 +294,13 @@ class UdpPort(_SocketPort):
     and written from templates (module docstring); the bus's own frames, which the kernel
     loops back, are never returned.
 
-    A datagram that equals one read before except for its timestamp and its payload is that
-    frame again (python-can packs the same fields in the same order every time): after the
-    first frame of each kind (COB-ID, length, sender) is parsed (:func:`virtual_bus.udp.
-    parse_plain`), its bytes around the timestamp and the payload are kept and the next ones
-    are recognised by two comparisons (at most :data:`KNOWN_FRAMES` kinds are kept)."""
+    A datagram that equals one read before except for its payload is that frame again
+    (python-can packs the same fields in the same order every time, and a loop's frame
+    templates and canopen's messages carry the timestamp 0.0): after the first frame of each
+    kind (COB-ID, length, sender) is parsed (:func:`virtual_bus.udp.parse_plain`), its bytes
+    before and after the payload are kept and the next ones are recognised by two
+    comparisons (one kind per size and COB-ID, at most :data:`KNOWN_FRAMES`; a sender whose
+    timestamps change, python-can's own bus, is parsed every time)."""
 
     kind = "raw UDP socket, python-can's msgpack format parsed in place, frame templates"
 
@@ -310,8 +312,8 @@ class UdpPort(_SocketPort):
         self._udp = bus
         self._own = bus.own_marker
         self._send = bus.sender.send  # connected to the group: no address to parse per frame
-        # by datagram size: (COB-ID, length, payload offset, bytes from the end of the
-        # timestamp to the payload, bytes after the payload)
+        # by datagram size: (COB-ID, length, payload offset, bytes before the payload,
+        # bytes after it)
         self._known: dict[int, list[tuple[int, int, int, bytes, bytes]]] = {}
         self._known_count = 0
 
@@ -323,11 +325,7 @@ class UdpPort(_SocketPort):
             size = self.size
             # a kind of frame of another bus read before (its token is in ``before``)
             for cob_id, length, offset, before, after in self._known.get(size, ()):
-                if (
-                    buffer.startswith(before, TIMESTAMP_END)
-                    and buffer.startswith(after, offset + length)
-                    and buffer.startswith(HEAD)
-                ):
+                if buffer.startswith(before) and buffer.startswith(after, offset + length):
                     self.length = length
                     self.offset = offset
                     self.cob_id = cob_id
@@ -344,10 +342,17 @@ class UdpPort(_SocketPort):
         self.cob_id = cob_id
         self.length = length
         self.offset = offset
-        if self._known_count < self.KNOWN_FRAMES:
-            before = bytes(buffer[TIMESTAMP_END:offset])
-            after = bytes(buffer[offset + length : size])
-            self._known.setdefault(size, []).append((cob_id, length, offset, before, after))
+        known = self._known.setdefault(size, [])
+        if self._known_count < self.KNOWN_FRAMES and all(k[0] != cob_id for k in known):
+            known.append(
+                (
+                    cob_id,
+                    length,
+                    offset,
+                    bytes(buffer[:offset]),
+                    bytes(buffer[offset + length : size]),
+                )
+            )
             self._known_count += 1
         return cob_id
 

@@ -277,11 +277,13 @@ class SimulatedDrive:
 
         # no kernel timestamp per frame (recvmsg: ~6,000 instructions each): the loop that
         # dates its SYNC from it polls around the SYNC (--busy-poll) and reads it at once
-        self.port = frame_port(bus)
+        self.port = port = frame_port(bus)
         self._tx_frames.clear()
+        self._pdo.use_frames(port.frame, port.send)
         try:
             yield handle
         finally:
+            self._pdo.use_frames(None)
             self.port = None
             self._tx_frames.clear()
             if self._started:

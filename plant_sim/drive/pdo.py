@@ -42,6 +42,7 @@ from virtual_bus.contract import COB_ID_EXTENDED as COB_ID_EXTENDED
 from virtual_bus.contract import COB_ID_INVALID as COB_ID_INVALID
 from virtual_bus.contract import COB_ID_NO_RTR as COB_ID_NO_RTR
 from virtual_bus.contract import SdoAbort, restricted_cob_id, split_mapping_entry
+from virtual_bus.framing import OutFrame
 
 from .errors import DriveSdoAbort
 from .od import (
@@ -136,6 +137,8 @@ class _Plan:
     pack: Callable[[], bytes] | None = None  # the payload now (layout and getters; None: no layout)
     #: RPDO: store its values when the latch only stores (see PdoEngine.latch_quiet)
     quiet: Callable[[bytes, Callable[[ObjectKey, int], bool]], bool] | None = None
+    #: TPDO: pack into the loop's own frame and send it (PdoEngine.use_frames; None: bytes)
+    emit: Callable[[], None] | None = None
 
 
 def _quiet_writer(
@@ -166,6 +169,40 @@ def _quiet_writer(
         return True
 
     return write
+
+
+def _emitter(
+    layout: struct.Struct,
+    getters: tuple[Callable[[], int], ...],
+    frame: OutFrame,
+    send: Callable[[OutFrame], None],
+) -> Callable[[], None]:
+    """``emit()``: the PDO's values now packed straight into ``frame`` and ``frame`` sent
+    (the usual sizes without building a list or a bytes object)."""
+    pack_into = layout.pack_into
+    buffer, offset = frame.buffer, frame.offset
+    if len(getters) == 2:
+        g0, g1 = getters
+
+        def emit2() -> None:
+            pack_into(buffer, offset, g0(), g1())
+            send(frame)
+
+        return emit2
+    if len(getters) == 3:
+        g0, g1, g2 = getters
+
+        def emit3() -> None:
+            pack_into(buffer, offset, g0(), g1(), g2())
+            send(frame)
+
+        return emit3
+
+    def emit() -> None:
+        pack_into(buffer, offset, *[get() for get in getters])
+        send(frame)
+
+    return emit
 
 
 def _packer(layout: struct.Struct, getters: tuple[Callable[[], int], ...]) -> Callable[[], bytes]:
@@ -208,6 +245,9 @@ class PdoEngine:
         self._pending: dict[int, bytes] = {}  # RPDO number -> data received since last SYNC
         self._tx_plans: tuple[_Plan, ...] | None = None
         self._rx_plans: dict[int, _Plan] | None = None
+        # the loop's frames for TPDOs (use_frames): make one, send one
+        self._frame_for: Callable[[int, int], OutFrame] | None = None
+        self._send_frame: Callable[[OutFrame], None] | None = None
         for ch in self._rx + self._tx:
             table.on((ch.comm, 1), validate=self._cob_id_validator(ch), changed=self._changed(ch))
             table.on((ch.comm, 2), validate=self._type_validator(ch), changed=self._changed(ch))
@@ -397,10 +437,17 @@ class PdoEngine:
             if layout.size * 8 != sum(m.bits for m in mapping):
                 layout = None
         getters = tuple(self._table.getter(k) for k in keys)
+        can_id = self.can_id(ch)
+        transmission_type = self._table.value((ch.comm, 2))
+        emit = None
+        framed = self._frame_for is not None and self._send_frame is not None
+        if layout is not None and ch.kind is PdoKind.TRANSMIT and transmission_type and framed:
+            frame = self._frame_for(can_id, layout.size)  # type: ignore[misc]
+            emit = _emitter(layout, getters, frame, self._send_frame)  # type: ignore[arg-type]
         return _Plan(
             ch,
-            self.can_id(ch),
-            self._table.value((ch.comm, 2)),
+            can_id,
+            transmission_type,
             keys,
             getters,
             layout,
@@ -409,7 +456,20 @@ class PdoEngine:
             None
             if layout is None or ch.kind is not PdoKind.RECEIVE
             else _quiet_writer(self._table, keys, layout),
+            emit,
         )
+
+    def use_frames(
+        self,
+        frame_for: Callable[[int, int], OutFrame] | None,
+        send_frame: Callable[[OutFrame], None] | None = None,
+    ) -> None:
+        """Send cyclic TPDOs (transmission types 1..240) as the loop's own preallocated frames
+        (``frame_for(cob_id, length)``, ``send_frame(frame)``: a FramePort's) packed in place,
+        from the next SYNC on; None: as bytes through ``send`` again."""
+        self._frame_for = frame_for
+        self._send_frame = send_frame
+        self._tx_plans = None
 
     def _compile(self) -> None:
         self._tx_plans = tuple(p for ch in self._tx if (p := self._plan(ch)) is not None)
@@ -557,6 +617,10 @@ class PdoEngine:
                 if ch.sync_count < plan.transmission_type:
                     continue
                 ch.sync_count = 0
+                if plan.emit is not None:
+                    plan.emit()
+                    sent += 1
+                    continue
                 data = self._plan_frame(plan)
             send(plan.can_id, data)
             sent += 1
