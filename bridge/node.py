@@ -469,14 +469,9 @@ class Bridge:
         self.timing.errors += 1
         log.error("receive failed: %s", exc)
 
-    def _send(self, frame: OutFrame) -> bool:
-        try:
-            self.frames.send(frame)
-            return True
-        except (can.CanError, OSError) as exc:
-            self.timing.errors += 1
-            log.error("send of 0x%03X failed: %s", frame.cob_id, exc)
-            return False
+    def _send_failed(self, frame: OutFrame, exc: Exception) -> None:
+        self.timing.errors += 1
+        log.error("send of 0x%03X failed: %s", frame.cob_id, exc)
 
     def _between_cycles(self, due: float | None) -> None:
         """Until the wall instant ``due`` (``None``: lockstep, no waiting): handle the frames
@@ -609,7 +604,11 @@ class Bridge:
         if keep:
             self._sync_wall = sync_wall
             cpu_sync = self._cpu()
-        self._send(self._sync_frame)
+        frames = self.frames
+        try:
+            frames.send(self._sync_frame)
+        except (can.CanError, OSError) as exc:
+            self._send_failed(self._sync_frame, exc)
         if self.peer_poll is not None:
             self.peer_poll()
         end = pacer.window_end(sync_wall)
@@ -617,7 +616,6 @@ class Bridge:
             self.flush_record()
         if keep:
             cpu_window = self._cpu()
-        frames = self.frames
         receive = frames.receive
         slot_of = self._slot_of
         dlc = self._tpdo_dlc
@@ -672,7 +670,10 @@ class Bridge:
             timing.errors += 1
             log.exception("controller step failed")
             self.controller.stop(StopReason.INTERNAL_ERROR, f"controller step failed: {exc!r}")
-        self._send(self._rpdo_frame)
+        try:
+            frames.send(self._rpdo_frame)
+        except (can.CanError, OSError) as exc:
+            self._send_failed(self._rpdo_frame, exc)
         if keep:
             now = wall()
             work = (cpu_window - cpu_sync) + (self._cpu() - cpu_inputs)  # not the TPDO wait

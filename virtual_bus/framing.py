@@ -217,16 +217,14 @@ class _SocketPort(FramePort):
         """One datagram / frame into the buffer (``self.size``), False if none came. A wait
         of a millisecond or more is a ``poll`` (milliseconds, cheaper), a shorter one
         ``select`` (microseconds: the wait for a SYNC's instant ends on time)."""
-        if timeout_s is None:
-            if not self._ready(None):
+        if timeout_s is None or timeout_s >= 0.001:
+            # milliseconds rounded down: never later than asked
+            if not self._ready(None if timeout_s is None else int(timeout_s * 1000.0)):
                 return False
-        elif timeout_s >= 0.001:
-            if not self._ready(int(timeout_s * 1000.0)):  # down: never later than asked
+        elif timeout_s > 0.0:
+            if not select.select((self.sock,), (), (), timeout_s)[0]:
                 return False
-        elif timeout_s <= 0.0:
-            if not self._ready(0):
-                return False
-        elif not select.select((self.sock,), (), (), timeout_s)[0]:
+        elif not self._ready(0):
             return False
         if self.stamped:
             self.size, self._ancillary, _, _ = self.sock.recvmsg_into(

@@ -112,9 +112,12 @@ def saturate(value: int, low: int, high: int) -> int:
     return low if value < low else high if value > high else value
 
 
+_LINEAR = AxisKind.LINEAR  # a global: reading an Enum member off its class is slow (3.11)
+
+
 def load_units_per_unit(kind: AxisKind) -> float:
     """Integer units of 60E4h:01 / 2101h / 2104h per load unit: nm per m or µrad per rad."""
-    return LOAD_INCREMENTS_PER_M if kind is AxisKind.LINEAR else LOAD_INCREMENTS_PER_RAD
+    return LOAD_INCREMENTS_PER_M if kind is _LINEAR else LOAD_INCREMENTS_PER_RAD
 
 
 def motor_position_increments(theta_rad: float) -> int:
@@ -314,6 +317,9 @@ class ObjectTable:
         self._readers: dict[ObjectKey, ReadFn] = {}
         self._validators: dict[ObjectKey, ValidateFn] = {}
         self._changed: dict[ObjectKey, ChangedFn] = {}
+        #: the stored values by key, for reading them where every instruction counts (the
+        #: per-SYNC code); written only through write/store/set_default/restore_defaults
+        self.stored = self._values
         self.restore_defaults(0x0000, 0xFFFF)
 
     def variable(self, key: ObjectKey) -> ODVariable:

@@ -124,6 +124,8 @@ class ServoAxis:
         self._readings = np.zeros(4)
         self._axis_limit_nm = axis_torque_limit_nm(plant)  # the axis file's, fixed
         self._ratio = plant.axis.transmission_ratio
+        self._jff = axis.control.acceleration_feedforward or 0.0  # kg m^2
+        self._cycle_s = axis.control.position_cycle
         self._word_state: State402 | None = None  # statusword(): state of _state_word
         self._state_word = 0
         self._limit_for: int | None = None  # torque_limit_nm(): the 6072h it was made for
@@ -238,7 +240,7 @@ class ServoAxis:
     def torque_limit_nm(self) -> float:
         """The torque limit in force: min(axis file limit, 6072h · 6076h); 6076h is read-only
         (its value from the drive configuration), kept from the last 6072h read."""
-        max_torque = self._table.value(O.MAX_TORQUE)
+        max_torque = self._table.stored[O.MAX_TORQUE]
         if max_torque != self._limit_for:
             self._limit_for = max_torque
             self._limit_nm = min(
@@ -313,10 +315,11 @@ class ServoAxis:
     def _step_plant(self) -> bool:
         """One position cycle of the plant; True when the power stage is off (coasting)."""
         p, t = self.plant, self._table
-        disturbance_nm = t.value(O.DISTURBANCE) / 1000.0
+        stored = t.stored
+        disturbance_nm = stored[O.DISTURBANCE] / 1000.0
         state = self.sm.state
         if state is _ENABLED:
-            speed = O.increments_to_rad(t.value(O.TARGET_VELOCITY))
+            speed = O.increments_to_rad(stored[O.TARGET_VELOCITY])
             p.advance(speed, disturbance_nm, self._torque_feedforward_nm(speed))
             return False
         elif state in (S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE):
@@ -342,17 +345,16 @@ class ServoAxis:
 
     def _torque_feedforward_nm(self, setpoint_rad_s: float) -> float:
         """J_ff times the speed set point's change over the last position cycle (N·m)."""
-        inertia = self.axis.control.acceleration_feedforward or 0.0
         change = setpoint_rad_s - self._last_setpoint_rad_s
         self._last_setpoint_rad_s = setpoint_rad_s
-        return inertia * change / self.axis.control.position_cycle
+        return self._jff * change / self._cycle_s
 
     # --- protection ----------------------------------------------------------------------------
     def _encoder_ok(self) -> bool:
         """Paper section II.B: |load scale − motor encoder| within 2101h (2104h's value)."""
         held = self._held or self._measured()
         units = O.load_difference_units(discrepancy(held[0], held[1], self._ratio), self.axis.kind)
-        return abs(units) <= self._table.value(O.ENCODER_TOLERANCE)
+        return abs(units) <= self._table.stored[O.ENCODER_TOLERANCE]
 
     def _setpoint_timeout(self) -> None:
         """No RPDO for 2102h SYNCs: EMCY 0x8250 naming the cause (:func:`setpoint_timeout_data`)
