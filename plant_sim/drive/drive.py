@@ -343,7 +343,7 @@ class SimulatedDrive:
         try:
             with self._lock:
                 self._errors.clear(EMCY_SYNC_LENGTH)
-                self.on_sync()
+                self._sync()
         except Exception as exc:  # as the callback's wrapper: kept for check()
             logger.exception("drive %d: callback for 0x%03X failed", self.node_id, cob_id)
             self._callback_errors.append(exc)
@@ -495,25 +495,29 @@ class SimulatedDrive:
         """One SYNC: latch RPDOs, supervise, send TPDOs, run the physics one position cycle
         (what the drive does on a SYNC frame; callable directly in unit tests)."""
         with self._lock:
-            operational = self._nmt.state is _OPERATIONAL
-            self._rpdo_seen = False
-            if operational and (applied := self._pdo.latch_quiet(self._unchanged)) is not None:
-                if applied:  # the set point a master repeats every SYNC: stored, no hook
-                    self._rpdo_arrived()
-            elif operational:
-                result = self._pdo.latch(before_apply=self._rpdo_arrived)
-                if result.short_frames:
-                    self._errors.set(EMCY_PDO_LENGTH, emcy_data_int32(result.short_frames[0]))
-                    for can_id in result.short_frames:
-                        self.guard.refuse(FrameFault.BAD_LENGTH, can_id, -1)
-            servo = self._servo
-            servo.hold_measurements()  # read after the last step (the first SYNC: now)
-            servo.supervise(self._rpdo_seen)
-            if operational:
-                self._pdo.transmit()
-            servo.advance()
-            self._sync_count += 1
-            self._heartbeat.tick(self._sync_count * self._cycle_us)
+            self._sync()
+
+    def _sync(self) -> None:
+        """:meth:`on_sync` with the lock held."""
+        operational = self._nmt.state is _OPERATIONAL
+        self._rpdo_seen = False
+        if operational and (applied := self._pdo.latch_quiet(self._unchanged)) is not None:
+            if applied:  # the set point a master repeats every SYNC: stored, no hook
+                self._rpdo_arrived()
+        elif operational:
+            result = self._pdo.latch(before_apply=self._rpdo_arrived)
+            if result.short_frames:
+                self._errors.set(EMCY_PDO_LENGTH, emcy_data_int32(result.short_frames[0]))
+                for can_id in result.short_frames:
+                    self.guard.refuse(FrameFault.BAD_LENGTH, can_id, -1)
+        servo = self._servo
+        servo.hold_measurements()  # read after the last step (the first SYNC: now)
+        servo.supervise(self._rpdo_seen)
+        if operational:
+            self._pdo.transmit()
+        servo.advance()
+        self._sync_count += 1
+        self._heartbeat.tick(self._sync_count * self._cycle_us)
 
     def _unchanged(self, key: O.ObjectKey, value: int) -> bool:
         """Whether writing ``value`` to ``key`` would do nothing beyond storing it: the

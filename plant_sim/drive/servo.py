@@ -125,6 +125,7 @@ class ServoAxis:
         self._axis_limit_nm = axis_torque_limit_nm(plant)  # the axis file's, fixed
         self._ratio = plant.axis.transmission_ratio
         self._jff = axis.control.acceleration_feedforward or 0.0  # kg m^2
+        self._step = plant.stepper()  # plant.advance for floats
         self._cycle_s = axis.control.position_cycle
         self._word_state: State402 | None = None  # statusword(): state of _state_word
         self._state_word = 0
@@ -320,7 +321,7 @@ class ServoAxis:
         state = self.sm.state
         if state is _ENABLED:
             speed = O.increments_to_rad(stored[O.TARGET_VELOCITY])
-            p.advance(speed, disturbance_nm, self._torque_feedforward_nm(speed))
+            self._step(speed, disturbance_nm, self._torque_feedforward_nm(speed))  # floats
             return False
         elif state in (S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE):
             if state is S.QUICK_STOP_ACTIVE:

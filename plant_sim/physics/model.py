@@ -8,7 +8,9 @@ simulator's closed loop (:mod:`plant_sim.physics.simulate`) and the bridge (over
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -217,6 +219,11 @@ class AxisPlant:
             float(disturbance_nm),
             float(torque_feedforward_nm),
         )
+
+    def stepper(self) -> Callable[[float, float, float], None]:
+        """:meth:`advance` for a caller that passes floats every position cycle (a drive):
+        the compiled step itself, bound to this plant, without the conversions."""
+        return functools.partial(K.advance, self._p, self._st)
 
     def advance_torque(self, torque_nm: float, disturbance_nm: float = 0.0) -> None:
         """Run one position cycle with the speed loop bypassed at a fixed torque set point
