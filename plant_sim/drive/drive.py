@@ -342,7 +342,8 @@ class SimulatedDrive:
         """A SYNC of 0 or 1 byte, admitted: what its callback does (and its wrapper)."""
         try:
             with self._lock:
-                self._errors.clear(EMCY_SYNC_LENGTH)
+                if self._errors.codes:
+                    self._errors.clear(EMCY_SYNC_LENGTH)
                 self._sync()
         except Exception as exc:  # as the callback's wrapper: kept for check()
             logger.exception("drive %d: callback for 0x%03X failed", self.node_id, cob_id)

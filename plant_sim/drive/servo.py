@@ -264,7 +264,7 @@ class ServoAxis:
             abs((self._held or self._measured())[3]) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
         ):
             word |= SW_INTERNAL_LIMIT
-        if self._errors.any_active and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
+        if self._errors.codes and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
             word |= SW_WARNING
         return word
 
@@ -285,8 +285,9 @@ class ServoAxis:
     # --- per SYNC ------------------------------------------------------------------------------
     def rpdo_arrived(self) -> None:
         """A complete RPDO is being applied at this SYNC: the set point is back."""
-        self._errors.clear(EMCY_RPDO_TIMEOUT)
-        self._errors.clear(EMCY_PDO_LENGTH)
+        if self._errors.codes:
+            self._errors.clear(EMCY_RPDO_TIMEOUT)
+            self._errors.clear(EMCY_PDO_LENGTH)
 
     def supervise(self, rpdo_received: bool) -> None:
         """After the RPDO latch, before the TPDOs: watchdog, encoders, end of the ramps."""
