@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 import can
 
+from regulator.errors import RegulatorError
 from virtual_bus import VirtualBusError, cli
 from virtual_bus.errors import BusUnavailableError, RealTimeRefused
 from virtual_bus.formats import FormatError
@@ -21,7 +22,7 @@ from virtual_bus.formats import FormatError
 from .commands.common import PROG
 from .errors import BridgeError, DriveSetupError
 
-COMMANDS = ("run", "probe", "config", "eds", "busload", "host_latency")
+COMMANDS = ("run", "probe", "config", "eds", "busload", "host_latency", "freqresp", "tune")
 DESCRIPTION = (
     "CANopen bridge running the backlash regulator of Mohammadiasl, 'Vibration Detection and "
     "Backlash Suppression in Machine Tools' (eq. 7, 15) against a CiA 402 drive in cyclic "
@@ -32,7 +33,7 @@ FAILURES = (
     cli.Failure((DriveSetupError,), cli.EXIT_FAILURE, "drive start-up failed"),
     cli.Failure((RealTimeRefused,), cli.EXIT_FAILURE, "refused"),
     cli.Failure((BusUnavailableError,), cli.EXIT_FAILURE),
-    cli.Failure((BridgeError, FormatError, VirtualBusError)),
+    cli.Failure((BridgeError, FormatError, VirtualBusError, RegulatorError)),
     cli.Failure((can.CanError,), cli.EXIT_FAILURE, "CAN bus error"),
     cli.FILE_ERRORS,
     cli.Failure((OSError,), cli.EXIT_FAILURE),

@@ -15,8 +15,10 @@ contract's layout and scaling.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import TypeVar
 
 from virtual_bus.contract import DataType, rpdo_cob_id, tpdo_cob_id
 
@@ -26,6 +28,7 @@ from .profile import OBJECT_TYPES, DriveProfile, LoadSource, ModeChoice, ObjectK
 from .scaling import MOTOR_INCREMENTS_PER_REV, Scaling
 
 log = logging.getLogger("bridge")
+_T = TypeVar("_T")
 
 #: 1018h:01/:02 of the contract's (simulated) drive: its scaling is the contract's.
 CONTRACT_IDENTITY = (0x0000_0000, 0x0000_0402)
@@ -306,19 +309,51 @@ def _usable_pdos(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> lis
 
 
 # --- scaling -------------------------------------------------------------------------------------
-def position_units_per_rev(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> float:
-    """6064h units per motor revolution: profile, else 6092h/6091h (user units), else 608Fh
-    (increments), else the contract's 2^20 for the contract's drive."""
+#: Fewest 6064h units per motor revolution the bridge accepts (1.4° per increment): the motor
+#: position feeds the encoder-discrepancy check (2009h) and, without a load scale, the position
+#: loop itself; a drive whose factor group defaults to 1 unit per revolution (6092h/6091h =
+#: 1/1) would pass the loop a position 314 mm coarse on the paper's axis.
+MIN_POSITION_UNITS_PER_REV = 256
+
+
+def _position_source(facts: DriveFacts, profile: DriveProfile) -> tuple[float, str] | None:
+    """6064h units per motor revolution and where the value came from (None: unknown)."""
     if profile.position_increments_per_rev is not None:
-        return float(profile.position_increments_per_rev)
+        return float(profile.position_increments_per_rev), "scaling.position_increments_per_rev"
     feed, gear = facts.ratio(0x6092), facts.ratio(0x6091)
     if feed is not None:
         # CiA 402 factor group: position unit = feed / (feed constant) per driving shaft rev
         g_motor, g_shaft = gear or (1, 1)
-        return feed[0] / feed[1] * g_shaft / g_motor
+        where = f"6092h feed constant {feed[0]}/{feed[1]}" + (
+            f" x 6091h gear ratio {g_motor}:{g_shaft}" if gear is not None else ""
+        )
+        return feed[0] / feed[1] * g_shaft / g_motor, where
     resolution = facts.ratio(0x608F)
     if resolution is not None:
-        return resolution[0] / resolution[1]
+        return resolution[0] / resolution[1], (
+            f"608Fh position encoder resolution {resolution[0]}/{resolution[1]}"
+        )
+    return None
+
+
+def position_units_per_rev(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> float:
+    """6064h units per motor revolution: profile, else 6092h/6091h (user units), else 608Fh
+    (increments), else the contract's 2^20 for the contract's drive. Fewer than
+    :data:`MIN_POSITION_UNITS_PER_REV` is refused with where the number came from."""
+    found = _position_source(facts, profile)
+    if found is not None:
+        value, where = found
+        if value < MIN_POSITION_UNITS_PER_REV:
+            key = (0x608F, 1) if where.startswith("608F") else (0x6092, 1)
+            raise _fail(
+                f"drive {drive_id}: 6064h would count {value:g} units per motor revolution "
+                f"({where}): too coarse for the position loop and the discrepancy check "
+                f"(at least {MIN_POSITION_UNITS_PER_REV}); set "
+                "scaling.position_increments_per_rev in the drive profile (or the drive's "
+                "6092h/6091h)",
+                key,
+            )
+        return value
     factor = facts.ratio(0x6093)
     if factor is not None and factor != (1, 1):
         raise _fail(
@@ -366,14 +401,60 @@ def rated_torque(facts: DriveFacts, profile: DriveProfile) -> int | None:
 
 
 # --- the plan ------------------------------------------------------------------------------------
-def plan(
-    facts: DriveFacts,
-    profile: DriveProfile,
-    drive_id: int,
-    contract_load_increments: float,
-) -> Plan:
-    """Layout, mode and scaling for this drive (module docstring)."""
-    notes: list[str] = []
+def combined_error(problems: list[DriveSetupError], drive_id: int) -> DriveSetupError:
+    """One error for every problem the plan found (a single one unchanged): the message
+    lists each (object, what was found, what to set), the error names the first object."""
+    if len(problems) == 1:
+        return problems[0]
+    prefix = f"drive {drive_id}: "
+    parts = [f"({i}) {str(p).removeprefix(prefix)}" for i, p in enumerate(problems, start=1)]
+    first = problems[0]
+    return DriveSetupError(
+        f"{prefix}{len(problems)} problems, all found before anything was written: "
+        + "; ".join(parts),
+        index=first.index,
+        subindex=first.subindex,
+        problems=tuple(problems),
+    )
+
+
+def _required_objects(
+    facts: DriveFacts, profile: DriveProfile, drive_id: int
+) -> list[DriveSetupError]:
+    found = []
+    core = ((0x6040, 0), (0x6041, 0), (0x6064, 0), (0x60FF, 0), (0x6060, 0))
+    if not any(facts.has(key) for key in core):  # not a drive at all: nothing else matters
+        shown = "not readable" if facts.device_type is None else f"0x{facts.device_type:08X}"
+        raise _fail(
+            f"drive {drive_id}: {format_key(core[0])} missing: not a CiA 402 drive (1000h "
+            f"device type {shown}; "
+            + ", ".join(format_key(key) for key in core[1:])
+            + " missing too)",
+            core[0],
+        )
+    for key in core:
+        if not facts.has(key):
+            found.append(
+                _fail(f"drive {drive_id}: {format_key(key)} missing: not a CiA 402 drive", key)
+            )
+    for key, what in (
+        ((0x6064, 0), "position actual value, in a TPDO every SYNC"),
+        ((0x6041, 0), "statusword, in a TPDO every SYNC"),
+        ((0x6040, 0), "controlword, in the RPDO"),
+        ((0x60FF, 0), "target velocity, in the RPDO"),
+    ):
+        if facts.has(key) and not profile.may_map(key):
+            found.append(
+                _fail(
+                    f"drive {drive_id}: {format_key(key)} is not PDO-mappable ({what}): the "
+                    "bridge cannot run this drive (no profile key replaces it)",
+                    key,
+                )
+            )
+    return found
+
+
+def _identity(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> None:
     for name, want, got in (
         ("1018h:01 vendor-ID", profile.vendor_id, facts.vendor_id),
         ("1018h:02 product code", profile.product_code, facts.product_code),
@@ -384,37 +465,9 @@ def plan(
                 f"'{profile.name}' is for 0x{want:08X}: wrong profile or wrong node-ID",
                 (0x1018, 1 if "vendor" in name else 2),
             )
-    for key in ((0x6040, 0), (0x6041, 0), (0x6064, 0), (0x60FF, 0), (0x6060, 0)):
-        if not facts.has(key):
-            raise _fail(f"drive {drive_id}: {format_key(key)} missing: not a CiA 402 drive", key)
-    for key in ((0x6064, 0), (0x6041, 0)):
-        if not profile.may_map(key):
-            raise _fail(f"drive {drive_id}: {format_key(key)} is not PDO-mappable", key)
-    if not profile.may_map((0x60FF, 0)) or not profile.may_map((0x6040, 0)):
-        raise _fail(f"drive {drive_id}: 6040h/60FFh are not PDO-mappable", (0x60FF, 0))
-    mode = choose_mode(facts, profile, drive_id)
-    load = load_item(facts, profile, drive_id)
-    source = profile.load_source
-    if source is LoadSource.AUTO:
-        source = (
-            LoadSource.MOTOR
-            if load is None
-            else (LoadSource.ADDITIONAL_SUB1 if load.key[1] else LoadSource.ADDITIONAL_VAR)
-        )
-    pdos = _usable_pdos(facts, profile, drive_id)
-    packed = pack(tpdo_items(facts, profile, load), pdos, profile, drive_id)
-    tt = profile.transmission_type
-    cob_of = dict(zip(profile.tpdos, profile.tpdo_cob_ids or (), strict=False))
-    tpdo_plans = tuple(
-        PdoPlan(
-            p.number,
-            cob_of.get(p.number, tpdo_cob_id(p.number, drive_id)),
-            True,
-            tt,
-            tuple(items),
-        )
-        for p, items in packed
-    )
+
+
+def _rpdo(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> PdoPlan:
     rpdo_numbers = {p.number for p in facts.rpdos}
     if profile.rpdo not in rpdo_numbers:
         raise _fail(
@@ -423,36 +476,98 @@ def plan(
             (0x1400 + profile.rpdo - 1, 1),
         )
     rpdo_cob = profile.rpdo_cob_id or rpdo_cob_id(profile.rpdo, drive_id)
-    rpdo = PdoPlan(
+    return PdoPlan(
         profile.rpdo,
         rpdo_cob,
         False,
         255,
         (Item(Signal.STATUSWORD, (0x6040, 0), "u16"), Item(Signal.STATUSWORD, (0x60FF, 0), "i32")),
     )
-    position = position_units_per_rev(facts, profile, drive_id)
-    velocity = velocity_units_per_rev_s(facts, profile, position, drive_id)
+
+
+def plan(
+    facts: DriveFacts,
+    profile: DriveProfile,
+    drive_id: int,
+    contract_load_increments: float,
+) -> Plan:
+    """Layout, mode and scaling for this drive (module docstring). Every check runs, so a
+    drive that lacks several things is refused once, naming all of them
+    (:func:`combined_error`), not once per round of commissioning."""
+    problems: list[DriveSetupError] = []
+
+    def attempt(check: Callable[..., _T], *args: object) -> _T | None:
+        try:
+            return check(*args)
+        except DriveSetupError as exc:
+            problems.append(exc)
+            return None
+
+    notes: list[str] = []
+    attempt(_identity, facts, profile, drive_id)
+    problems += _required_objects(facts, profile, drive_id)
+    mode = attempt(choose_mode, facts, profile, drive_id)
+    load_failed = len(problems)
+    load = attempt(load_item, facts, profile, drive_id)
+    load_failed = len(problems) > load_failed
+    source = profile.load_source
+    if source is LoadSource.AUTO:
+        source = (
+            LoadSource.MOTOR
+            if load is None
+            else (LoadSource.ADDITIONAL_SUB1 if load.key[1] else LoadSource.ADDITIONAL_VAR)
+        )
+    tt = profile.transmission_type
+    cob_of = dict(zip(profile.tpdos, profile.tpdo_cob_ids or (), strict=False))
+    tpdo_plans: tuple[PdoPlan, ...] = ()
+    pdos = attempt(_usable_pdos, facts, profile, drive_id)
+    if pdos is not None and facts.has((0x6064, 0)) and facts.has((0x6041, 0)):
+        packed = attempt(pack, tpdo_items(facts, profile, load), pdos, profile, drive_id)
+        tpdo_plans = tuple(
+            PdoPlan(
+                p.number,
+                cob_of.get(p.number, tpdo_cob_id(p.number, drive_id)),
+                True,
+                tt,
+                tuple(items),
+            )
+            for p, items in packed or ()
+        )
+    rpdo = attempt(_rpdo, facts, profile, drive_id)
+    position = attempt(position_units_per_rev, facts, profile, drive_id)
+    velocity = None
+    if position is not None:
+        velocity = attempt(velocity_units_per_rev_s, facts, profile, position, drive_id)
+    else:  # a velocity factor is a problem of its own, whatever the position scale
+        attempt(velocity_units_per_rev_s, facts, profile, 1.0, drive_id)
     torque_mnm = rated_torque(facts, profile)
     if torque_mnm is None:
         notes.append(
             "6076h motor rated torque is 0 or absent: torque shown in per mille of the rated torque"
         )
+    load_inc: float = contract_load_increments
     if source in (LoadSource.ADDITIONAL_SUB1, LoadSource.ADDITIONAL_VAR):
         load_inc = profile.load_increments_per_unit or contract_load_increments
     elif source is LoadSource.MOTOR:
-        load_inc = contract_load_increments  # unused: no load frame
         notes.append(
             "position_feedback = motor: no load measuring system, the position loop closes "
             "on the motor encoder and the backlash regulator has nothing to do"
         )
-    else:
-        if profile.load_increments_per_unit is None:
+    elif profile.load_increments_per_unit is None:
+        if not load_failed:
             what = "load.object" if source is LoadSource.VENDOR else "encoder 6004h"
-            raise _fail(
-                f"drive {drive_id}: the scale of {what} is unknown: set load.increments_per_unit"
-                " (increments per m or rad) in the drive profile"
+            problems.append(
+                _fail(
+                    f"drive {drive_id}: the scale of {what} is unknown: set "
+                    "load.increments_per_unit (increments per m or rad) in the drive profile"
+                )
             )
+    else:
         load_inc = profile.load_increments_per_unit
+    if problems:
+        raise combined_error(problems, drive_id)
+    assert mode is not None and rpdo is not None and position is not None
+    assert velocity is not None
     scaling = Scaling(
         load_inc, None if torque_mnm is None else torque_mnm / 1000.0, position, velocity
     )
@@ -475,7 +590,7 @@ def plan(
                 (Signal.LOAD_POSITION,),
             )
         )
-    layout = CycleLayout(tuple(frames), rpdo_cob, "<Hi")
+    layout = CycleLayout(tuple(frames), rpdo.cob_id, "<Hi")
     if mode is VelocityMode.PROFILE_VELOCITY:
         notes.append(
             "profile velocity (6060h = 3): 6502h lists no cyclic synchronous velocity; "

@@ -84,6 +84,8 @@ class StopReason(Enum):
     INTERNAL_ERROR = 12  # the controller's own step failed (a bug; the message names it)
     SYNC_CONFLICT = 13  # a SYNC the bridge did not send: a second SYNC producer on the bus
     ENCODER_EMCY = 14  # the CiA 406 encoder node (load scale) sent an EMCY with a non-zero code
+    TEST_LIMIT = 15  # a commissioning test (freqresp, tune) broke its own limit (e.g. torque)
+    NMT_COMMAND = 16  # an NMT command took the bridge out of Operational (bridge.nmt)
 
 
 class Command(IntEnum):

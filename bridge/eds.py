@@ -19,6 +19,7 @@ from .od import (
     I32,
     IDENTITY,
     OBJECTS,
+    SMALLEST_REAL32,
     STORED,
     U8,
     U16,
@@ -33,7 +34,7 @@ from .od import (
 _MANDATORY = (DEVICE_TYPE, ERROR_REGISTER, IDENTITY)
 #: Bump with every change of the object table; the dates are fixed so that the rendering
 #: stays deterministic (CiA 306 formats: hh:mm(AM|PM), mm-dd-yyyy).
-FILE_REVISION = 1
+FILE_REVISION = 2
 MODIFIED = ("11:00PM", "11-23-2026")
 
 
@@ -70,8 +71,9 @@ def _entry_lines(section: str, e: Entry) -> list[str]:
         lines.append(f"StorageLocation={'PERSIST' if stored else 'RAM'}")
     if e.unit:
         lines.append(f"Unit={e.unit}")
-    if e.description:
-        lines.append(f"Description={e.description}")
+    description = " ".join(part for part in (e.description, *e.rules) if part)
+    if description:
+        lines.append(f"Description={description}")
     return [*lines, ""]
 
 
@@ -105,6 +107,13 @@ COMMENTS = (
     "Units: speeds rad/s at the motor, positions in load units (m linear, rad rotary),",
     "move targets/feeds in load-scale increments (nm or urad) like the drive's 60E4h:01.",
     "Invalid writes: 0609 0030/31/32; locked while enabled: 0800 0022; read-only: 0601 0002.",
+    "LowLimit/HighLimit hold for REAL32 too (NaN: 0609 0030); a REAL32 LowLimit of",
+    f"{SMALLEST_REAL32!r} (the smallest positive REAL32) means a range open at 0.",
+    "Rules in a Description: [requires EXPR else CODE]: after the CiA 301 checks and the",
+    "limits, a write is refused with abort CODE when EXPR is false. EXPR is a Python",
+    "expression of value (the value written), present (the object's present value) and",
+    "XXXXh / XXXXh:SS (the present value of another object); rules apply in their order.",
+    "2010h-2012h rules assume a linear axis (1e9 nm per m; rotary: 1e6 urad per rad).",
     "StorageLocation=PERSIST: saved by 1010h ('save') and loaded at start-up; RAM: not stored.",
     "Refused frames are counted in 2110h (docs/canopen_layout.md).",
 )

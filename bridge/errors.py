@@ -60,6 +60,8 @@ class DriveSetupError(BridgeError, RuntimeError):
 
     ``index``/``subindex`` name the object (``None`` when not object-specific),
     ``abort_code`` the SDO abort code the drive answered with (``None`` for timeouts).
+    ``problems``: when the start-up's plan found several things missing at once, one error
+    per problem (this error names the first one's object); else empty.
     """
 
     def __init__(
@@ -69,11 +71,13 @@ class DriveSetupError(BridgeError, RuntimeError):
         index: int | None = None,
         subindex: int | None = None,
         abort_code: int | None = None,
+        problems: tuple[DriveSetupError, ...] = (),
     ) -> None:
         super().__init__(message)
         self.index = index
         self.subindex = subindex
         self.abort_code = abort_code
+        self.problems = problems
 
 
 class DriveTimeoutError(DriveSetupError, TimeoutError):

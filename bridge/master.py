@@ -387,7 +387,7 @@ class DriveMaster:
                     self.configure_pdo(spec)
                 break
             except UnmappableError as exc:
-                log.warning("drive %d: %s; planning without it", self.drive.id, exc)
+                log.warning("%s; planning without it", exc)
                 the_plan = self.plan(facts)
         self.configure_pdo(the_plan.rpdo)
         if self.setup.disable_other_pdos:

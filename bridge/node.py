@@ -46,6 +46,7 @@ from virtual_bus.contract import (
     NMT_LENGTH,
     SDO_LENGTH,
     SDO_TX_BASE,
+    NmtState,
     emcy_cob_id,
     heartbeat_cob_id,
     sdo_rx_cob_id,
@@ -68,6 +69,7 @@ from .errors import BridgeConfigError
 from .layout import NMT_COB_ID, SYNC_COB_ID, CobIds, CycleLayout, check_node_id, contract_layout
 from .loopstats import Timing
 from .master import DriveInfo, DriveMaster, DriveSetup
+from .nmt import BridgeNmt
 from .objects import ObjectServer, PdoCounters
 from .od import DEFAULT_DRIVE_ID, DEFAULT_EDS_PATH, DEFAULT_NODE_ID, load_od
 from .params import BridgeParams
@@ -103,9 +105,11 @@ def pumping(
     recv: Callable[[float | None], can.Message | None],
     handle: Callable[[can.Message], None],
     name: str,
+    idle: Callable[[], None] | None = None,
 ) -> Iterator[None]:
     """A thread that hands every received frame to ``handle`` while the block runs (the SDO
-    client's answers during start-up and ``bridge probe``)."""
+    client's answers during start-up and ``bridge probe``); ``idle`` is called between frames
+    (at least every 5 ms)."""
     stop = threading.Event()
 
     def pump() -> None:
@@ -113,6 +117,8 @@ def pumping(
             msg = recv(0.005)
             if msg is not None:
                 handle(msg)
+            if idle is not None:
+                idle()
 
     thread = threading.Thread(target=pump, name=name, daemon=True)
     thread.start()
@@ -215,8 +221,12 @@ class Bridge:
         self.port = BusPort(bus, bus_log)
         self.network = canopen.Network(self.port)  # type: ignore[arg-type]
         self.node = canopen.LocalNode(config.node_id, load_od(config.eds_path, config.node_id))
-        self.node.sdo = CheckedSdoServer(self.node)  # before the node joins the network
+        # before the node joins the network; silent in NMT Stopped (bridge.nmt)
+        self.node.sdo = CheckedSdoServer(self.node, blocked=lambda: self.nmt.sdo_blocked)
         self.network.add_node(self.node)
+        self.nmt = BridgeNmt(self.node, self._send_frame, self._nmt_changed)
+        self.network.unsubscribe(NMT_COB_ID, self.node.nmt.on_command)
+        self.network.subscribe(NMT_COB_ID, self.nmt.on_command)
         self.drive = canopen.RemoteNode(config.drive_id, canopen.ObjectDictionary())
         self.network.add_node(self.drive)
         self.counters = PdoCounters()
@@ -369,9 +379,23 @@ class Bridge:
     @contextlib.contextmanager
     def serving(self) -> Iterator[None]:
         """Feed received frames to canopen from a thread (SDO client/server while not
-        cycling); the thread ends when the block ends."""
-        with pumping(self.port.recv, self.dispatch, "bridge-service"):
+        cycling; the heartbeat on the wall clock); the thread ends when the block ends."""
+        idle = lambda: self.nmt.tick(self._wall())  # noqa: E731
+        with pumping(self.port.recv, self.dispatch, "bridge-service", idle):
             yield
+
+    # --- the bridge's own NMT slave (bridge.nmt) ------------------------------------------
+    def _send_frame(self, can_id: int, data: bytes) -> None:
+        self._send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+
+    def _nmt_changed(self, state: NmtState) -> None:
+        """Outside Operational the bridge may not exchange PDOs (CiA 301 table 46): an
+        enabled axis is stopped (its quick stop still goes out with the next RPDO)."""
+        if state is not NmtState.OPERATIONAL:
+            self.controller.stop_for(
+                StopReason.NMT_COMMAND,
+                f"NMT {state.name.lower().replace('_', '-')} commanded to the bridge",
+            )
 
     # --- start-up ---------------------------------------------------------------------------
     def start(self, configure_drive: bool = True) -> DriveInfo | None:
@@ -682,6 +706,7 @@ class Bridge:
                 0.0 if due is None else sync_wall - due, now - sync_wall, now - inputs_wall, work
             )
         self._record_pending = self.recorder is not None
+        self.nmt.tick(pacer.now())
         self._k = k + 1
 
     def run(self, cycles: int | None = None, until: Callable[[Bridge], bool] | None = None) -> int:

@@ -24,9 +24,11 @@ from pathlib import Path
 import canopen
 from canopen.objectdictionary import datatypes as dt
 
+from virtual_bus.sdo_server import apply_real_limits
 from virtual_bus.shipped import BRIDGE_EDS
 
 from .errors import BridgeConfigError
+from .params import BOUNDS
 
 #: Where the rendered EDS lives in the repository.
 DEFAULT_EDS_PATH = BRIDGE_EDS
@@ -57,8 +59,11 @@ class Entry:
     """One VAR (or one sub-index of an ARRAY/RECORD).
 
     data_type: CiA 301 data type code (``canopen.objectdictionary.datatypes``). default: the
-    EDS DefaultValue. low/high: LowLimit/HighLimit (integers only; REAL32 ranges are in the
-    description and enforced by :mod:`bridge.params`).
+    EDS DefaultValue. low/high: LowLimit/HighLimit, enforced by the SDO server before the
+    application (REAL32 too: an open bound at 0 is the smallest positive REAL32,
+    :data:`SMALLEST_REAL32`). rules: what the node enforces beyond the limits (dependencies on
+    other objects and on the bridge state), written into the Description in the notation of
+    :data:`RULES_NOTE` so that a tool reading only the EDS predicts every SDO answer.
     """
 
     index: int
@@ -69,8 +74,9 @@ class Entry:
     default: int | float | str
     unit: str = ""
     description: str = ""
-    low: int | None = None
-    high: int | None = None
+    low: int | float | None = None
+    high: int | float | None = None
+    rules: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -92,10 +98,11 @@ def _var(
     default: int | float | str,
     unit: str = "",
     description: str = "",
-    low: int | None = None,
-    high: int | None = None,
+    low: int | float | None = None,
+    high: int | float | None = None,
+    rules: tuple[str, ...] = (),
 ) -> Entry:
-    return Entry(index, 0, name, data_type, access, default, unit, description, low, high)
+    return Entry(index, 0, name, data_type, access, default, unit, description, low, high, rules)
 
 
 R, U8, U16, U32, I32, BOOL, VS = (
@@ -111,7 +118,7 @@ RO, RW, WO, CONST = Access.RO, Access.RW, Access.WO, Access.CONST
 
 # --- indices used by the code ----------------------------------------------------------------
 DEVICE_TYPE, ERROR_REGISTER, COB_ID_SYNC, CYCLE_PERIOD = 0x1000, 0x1001, 0x1005, 0x1006
-DEVICE_NAME, HEARTBEAT_CONSUMER, IDENTITY = 0x1008, 0x1016, 0x1018
+DEVICE_NAME, HEARTBEAT_CONSUMER, HEARTBEAT_PRODUCER, IDENTITY = 0x1008, 0x1016, 0x1017, 0x1018
 STORE_PARAMETERS, RESTORE_DEFAULTS = 0x1010, 0x1011
 KV, REG_ENABLE, BETA_T, WINDOW_N, TV, TF, KR = range(0x2000, 0x2007)
 SPEED_LIMIT, FE_LIMIT, DISC_LIMIT, PDO_TOLERANCE, VELOCITY_FF = range(0x2007, 0x200C)
@@ -133,6 +140,41 @@ STORE_ON_COMMAND = 0x0000_0001
 #: Default software position limits (2014h), load units: +-2 m covers the INTEGER32 nm range
 #: of 2010h (+-2.147 m).
 DEFAULT_POSITION_LIMIT = 2.0
+#: Heartbeat producer time 1017h default, ms: 0 = off (CiA 301); a tool that supervises the
+#: bridge sets it (bridge.nmt).
+DEFAULT_HEARTBEAT_MS = 0
+#: The smallest positive REAL32 (2^-149): the LowLimit of a range open at 0, "(0, x]".
+SMALLEST_REAL32 = 2.0**-149
+#: Load-scale increments per load unit the EDS's rules assume (a linear axis: nm per m; a
+#: rotary axis, µrad per rad, scales 2010h-2012h by 1e6 instead).
+RULE_INCREMENTS_PER_UNIT = 1e9
+_INC = "1e9"  # RULE_INCREMENTS_PER_UNIT as the rules write it
+#: How the rules in the Descriptions read (also in the EDS's [Comments]).
+RULES_NOTE = (
+    "Rules: [requires EXPR else CODE] in a Description: a write (after the CiA 301 checks and "
+    "the limits) is answered with abort CODE when EXPR is false; EXPR reads value (the value "
+    "written), present (the object's present value) and other objects as XXXXh or XXXXh:SS "
+    "(their present values); docs/peers.md"
+)
+_STATE = 0x2104  # the bridge state 2104h (bridge.cycle.BridgeState: 2 enabling, 3 running)
+#: Parameters locked while the axis is enabled (bridge.params.LOCKED).
+LOCKED_RULE = f"[requires {_STATE:04X}h not in (2, 3) else 0800 0022]"
+
+
+def _limits(field: str) -> tuple[float, float]:
+    """LowLimit/HighLimit of a REAL32 parameter from its :data:`bridge.params.BOUNDS`."""
+    bound = BOUNDS[field]
+    low = SMALLEST_REAL32 if bound.low_open and bound.low == 0.0 else bound.low
+    assert not bound.low_open or bound.low == 0.0, f"{field}: open bound other than 0"
+    return low, bound.high
+
+
+_STORE_RULE = (
+    "[requires value == 0x{sig:08X} and {index:04X}h:01 == 1 else 0800 0020]"  # CiA 301 7.5.2.13
+)
+_LOW_KV = f"[requires {TV:04X}h == 0 or {TV:04X}h >= 20 / value * (1 - 1e-12) else 0609 0032]"
+_SAMPLING = "{c} / 1e6 < 1 / ({kv} * 2 * ({n} + 1))"  # section VII, regulator.max_cycle_s
+_FEED_RULE = "{feed} / {inc} * {kr} <= {limit}"  # feed * k_r <= speed set point limit
 
 OBJECTS: tuple[Entry | Group, ...] = (
     # --- communication profile (CiA 301) -----------------------------------------------------
@@ -152,7 +194,9 @@ OBJECTS: tuple[Entry | Group, ...] = (
         RW,
         SYNC_COB_ID_VALUE,
         description="bit 30: the bridge is the SYNC producer; COB-ID 0x080 (rw as CiA 301 "
-        "defines it; only this value is accepted, others 0609 0030)",
+        "defines it; LowLimit = HighLimit: no other value is accepted)",
+        low=SYNC_COB_ID_VALUE,
+        high=SYNC_COB_ID_VALUE,
     ),
     _var(
         CYCLE_PERIOD,
@@ -165,6 +209,12 @@ OBJECTS: tuple[Entry | Group, ...] = (
         "cycle < 1/(2 (n+1) kv); locked while the axis is enabled",
         100,
         100_000,
+        rules=(
+            LOCKED_RULE,
+            "[requires "
+            + _SAMPLING.format(c="value", kv=f"{KV:04X}h", n=f"{WINDOW_N:04X}h")
+            + " else 0609 0031]",
+        ),
     ),
     _var(DEVICE_NAME, "Manufacturer device name", VS, CONST, "backlash-bridge"),
     Group(
@@ -180,8 +230,11 @@ OBJECTS: tuple[Entry | Group, ...] = (
                 RW,
                 (DEFAULT_DRIVE_ID << 16) | 250,
                 "ms",
-                "bits 16-23 drive node-ID, bits 0-15 timeout in ms (0: not monitored); "
-                "locked while the axis is enabled",
+                f"bits 16-23 drive node-ID ({DEFAULT_DRIVE_ID}: the limits), bits 0-15 timeout "
+                "in ms (0: not monitored); locked while the axis is enabled",
+                DEFAULT_DRIVE_ID << 16,
+                (DEFAULT_DRIVE_ID << 16) | 0xFFFF,
+                (LOCKED_RULE,),
             ),
         ),
     ),
@@ -199,8 +252,9 @@ OBJECTS: tuple[Entry | Group, ...] = (
                 STORE_ON_COMMAND,
                 "",
                 "CiA 301: write 0x65766173 ('save') to store the objects marked "
-                "StorageLocation=PERSIST in the store file; other values: 0800 0020; "
-                "read: 1 (saves on command)",
+                "StorageLocation=PERSIST in the store file; other values, or no store file "
+                "(read 0): 0800 0020; read: 1 (saves on command)",
+                rules=(_STORE_RULE.format(sig=SAVE_SIGNATURE, index=STORE_PARAMETERS),),
             ),
         ),
     ),
@@ -218,9 +272,20 @@ OBJECTS: tuple[Entry | Group, ...] = (
                 STORE_ON_COMMAND,
                 "",
                 "CiA 301: write 0x64616F6C ('load') to discard the store file; the defaults "
-                "(axis file) apply at the next start; other values: 0800 0020",
+                "(axis file) apply at the next start; other values, or no store file "
+                "(read 0): 0800 0020",
+                rules=(_STORE_RULE.format(sig=LOAD_SIGNATURE, index=RESTORE_DEFAULTS),),
             ),
         ),
+    ),
+    _var(
+        HEARTBEAT_PRODUCER,
+        "Producer heartbeat time",
+        U16,
+        RW,
+        DEFAULT_HEARTBEAT_MS,
+        "ms",
+        "the bridge's heartbeat (its NMT state) every so many ms; 0: off",
     ),
     Group(
         IDENTITY,
@@ -242,7 +307,16 @@ OBJECTS: tuple[Entry | Group, ...] = (
         25.0,
         "1/s",
         "P position controller on the load scale, eq. 7: omega_c = k_r kv (x_ref - x_l); "
-        "(0, 1000]; locked while enabled",
+        "(0, 1000]; section VII sampling rule with 1006h and 2003h; eq. 14 with 2004h; "
+        "locked while enabled",
+        *_limits("kv_per_s"),
+        rules=(
+            LOCKED_RULE,
+            "[requires "
+            + _SAMPLING.format(c=f"{CYCLE_PERIOD:04X}h", kv="value", n=f"{WINDOW_N:04X}h")
+            + " else 0609 0031]",
+            _LOW_KV,
+        ),
     ),
     _var(
         REG_ENABLE,
@@ -253,6 +327,7 @@ OBJECTS: tuple[Entry | Group, ...] = (
         "",
         "1: speed regulator of eq. 15 in the loop; 0: omega_r = omega_c (beta still "
         "measured); locked while enabled",
+        rules=(LOCKED_RULE,),
     ),
     _var(
         BETA_T,
@@ -262,6 +337,8 @@ OBJECTS: tuple[Entry | Group, ...] = (
         0.2,
         "rad/s",
         "beta_T of eq. 15, motor side; (0, 1e4]; locked while enabled",
+        *_limits("beta_t_rad_s"),
+        rules=(LOCKED_RULE,),
     ),
     _var(
         WINDOW_N,
@@ -270,9 +347,16 @@ OBJECTS: tuple[Entry | Group, ...] = (
         RW,
         4,
         "",
-        "the detector averages n+1 samples (section VII, paper: 4); locked while enabled",
+        "the detector averages n+1 samples (section VII, paper: 4); sampling rule with 1006h "
+        "and 2000h; locked while enabled",
         1,
         64,
+        rules=(
+            LOCKED_RULE,
+            "[requires "
+            + _SAMPLING.format(c=f"{CYCLE_PERIOD:04X}h", kv=f"{KV:04X}h", n="value")
+            + " else 0609 0031]",
+        ),
     ),
     _var(
         TV,
@@ -281,7 +365,13 @@ OBJECTS: tuple[Entry | Group, ...] = (
         RW,
         0.0,
         "s",
-        "0: eq. 14 default 20/kv; else >= 20/kv (eq. 14); locked while enabled",
+        "0: eq. 14 default 20/kv; else >= 20/kv (eq. 14), at most 1000; locked while enabled",
+        0.0,
+        BOUNDS["tv_s"].high,
+        rules=(
+            LOCKED_RULE,
+            f"[requires value == 0 or value >= 20 / {KV:04X}h * (1 - 1e-12) else 0609 0032]",
+        ),
     ),
     _var(
         TF,
@@ -291,6 +381,8 @@ OBJECTS: tuple[Entry | Group, ...] = (
         0.05,
         "s",
         "vibration level smoothing (section VII); (0, 100]; locked while enabled",
+        *_limits("tf_s"),
+        rules=(LOCKED_RULE,),
     ),
     _var(
         KR,
@@ -299,7 +391,20 @@ OBJECTS: tuple[Entry | Group, ...] = (
         RW,
         PAPER_KR,
         "rad per load unit",
-        "motor rad per load unit (m or rad); locked while enabled",
+        "motor rad per load unit (m or rad); feed 2011h times k_r within 2007h; locked while "
+        "enabled",
+        *_limits("transmission_ratio"),
+        rules=(
+            LOCKED_RULE,
+            "[requires "
+            + _FEED_RULE.format(
+                feed=f"{FEED:04X}h",
+                inc=_INC,
+                kr="value",
+                limit=f"{SPEED_LIMIT:04X}h",
+            )
+            + " else 0609 0031]",
+        ),
     ),
     # --- limits (may change at any time) ----------------------------------------------------
     _var(
@@ -309,7 +414,13 @@ OBJECTS: tuple[Entry | Group, ...] = (
         RW,
         100.0 * math.pi,
         "rad/s",
-        "|omega_r| is clamped to this; (0, 12867]",
+        "|omega_r| is clamped to this; (0, 12867]; at least feed 2011h times k_r 2006h",
+        *_limits("speed_limit_rad_s"),
+        rules=(
+            "[requires "
+            + _FEED_RULE.format(feed=f"{FEED:04X}h", inc=_INC, kr=f"{KR:04X}h", limit="value")
+            + " else 0609 0032]",
+        ),
     ),
     _var(
         FE_LIMIT,
@@ -319,6 +430,7 @@ OBJECTS: tuple[Entry | Group, ...] = (
         0.005,
         "load unit",
         "stop (reason 5) when |x_ref - x_l| exceeds it; (0, 10]",
+        *_limits("following_error_limit"),
     ),
     _var(
         DISC_LIMIT,
@@ -329,6 +441,7 @@ OBJECTS: tuple[Entry | Group, ...] = (
         "load unit",
         "stop (reason 6) when motor and load scale differ by more than this relative to "
         "enable (section II.B: about 0.5 mm or 0.5 deg); (0, 10]",
+        *_limits("discrepancy_limit"),
     ),
     _var(
         PDO_TOLERANCE,
@@ -350,6 +463,8 @@ OBJECTS: tuple[Entry | Group, ...] = (
         "",
         "omega_c = k_r kv (x_ref - x_l) + k_vff omega_s (axis file control.velocity_feedforward); "
         "[0, 1.5]; locked while enabled",
+        *_limits("velocity_feedforward"),
+        rules=(LOCKED_RULE,),
     ),
     # --- moves ------------------------------------------------------------------------------
     _var(
@@ -360,7 +475,12 @@ OBJECTS: tuple[Entry | Group, ...] = (
         0,
         "load increments",
         "nm (linear) or urad (rotary); a write starts a move at 2011h/2012h (only while "
-        "running and no move is active, else 0800 0022)",
+        "running and no move is active, else 0800 0022) to a target within 2014h",
+        rules=(
+            f"[requires {_STATE:04X}h == 3 and {MOVE_STATUS:04X}h == 0 else 0800 0022]",
+            f"[requires value / {_INC} >= {POSITION_LIMITS:04X}h:01 else 0609 0032]",
+            f"[requires value / {_INC} <= {POSITION_LIMITS:04X}h:02 else 0609 0031]",
+        ),
     ),
     _var(
         FEED,
@@ -372,6 +492,16 @@ OBJECTS: tuple[Entry | Group, ...] = (
         "nm/s or urad/s; feed * k_r must not exceed the speed set point limit",
         1,
         0xFFFF_FFFF,
+        rules=(
+            "[requires "
+            + _FEED_RULE.format(
+                feed="value",
+                inc=_INC,
+                kr=f"{KR:04X}h",
+                limit=f"{SPEED_LIMIT:04X}h",
+            )
+            + " else 0609 0031]",
+        ),
     ),
     _var(
         ACCEL,
@@ -401,6 +531,8 @@ OBJECTS: tuple[Entry | Group, ...] = (
                 "like CiA 402 607Dh:01, in m or rad: a move to a target below it is refused "
                 "(0609 0032); the axis is stopped (reason 10) when the load scale is below it "
                 "and no move heads back; [-1000, 1000], below 2014h:02",
+                *_limits("position_limit_min"),
+                (f"[requires value < {POSITION_LIMITS:04X}h:02 else 0609 0031]",),
             ),
             Entry(
                 POSITION_LIMITS,
@@ -413,6 +545,8 @@ OBJECTS: tuple[Entry | Group, ...] = (
                 "like CiA 402 607Dh:02, in m or rad: a move to a target above it is refused "
                 "(0609 0031); the axis is stopped (reason 10) when the load scale is above it "
                 "and no move heads back; [-1000, 1000], above 2014h:01",
+                *_limits("position_limit_max"),
+                (f"[requires value > {POSITION_LIMITS:04X}h:01 else 0609 0032]",),
             ),
         ),
     ),
@@ -423,10 +557,15 @@ OBJECTS: tuple[Entry | Group, ...] = (
         WO,
         0,
         "",
-        "0: idle (no command), 1: enable, 2: disable, 3: reset a stop (then enable); "
-        "above 3: 0609 0031; not possible in the present state: 0800 0022",
+        "0: idle (no command), 1: enable (from disabled), 2: disable (while enabling or "
+        "running), 3: reset a stop (to disabled); above 3: 0609 0031; not possible in the "
+        "present state (2104h): 0800 0022",
         0,
         3,
+        rules=(
+            f"[requires value == 0 or (value == 1 and {_STATE:04X}h == 1) or (value == 2 and "
+            f"{_STATE:04X}h in (2, 3)) or (value == 3 and {_STATE:04X}h == 4) else 0800 0022]",
+        ),
     ),
     # --- live values (read only) ------------------------------------------------------------
     _var(BETA, "Vibration level beta", R, RO, 0.0, "rad/s", "Fig. 5 detector output"),
@@ -571,6 +710,8 @@ def load_od(
     if not path.is_file():
         raise BridgeConfigError(f"{path}: no such EDS file (render it with `python -m bridge eds`)")
     try:
-        return canopen.import_od(str(path), node_id)
+        od = canopen.import_od(str(path), node_id)
+        apply_real_limits(od, str(path))  # python canopen drops REAL32 LowLimit/HighLimit
     except Exception as exc:  # configparser and canopen raise assorted types
         raise BridgeConfigError(f"{path}: not a readable EDS ({exc})") from exc
+    return od

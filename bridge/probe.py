@@ -2,27 +2,36 @@
 (``--out``) write a drive profile for ``bridge run --drive-profile``.
 
 Reads only (the drive is put into NMT pre-operational; nothing is written): 1000h, 1018h,
-6502h, the PDO parameters and the objects of :data:`bridge.adapt.CANDIDATES`. SDO cannot
-tell whether an object is PDO-mappable; ``--eds`` takes that from the drive's EDS (its
-``PDOMapping`` flags), otherwise the profile leaves ``mappable`` out and the start-up finds
-out by trying. Then the start-up's plan for the profile is printed, or the one line that
-says what is missing and what to configure (exit 0 either way: the profile is written for
-the user to complete). Exit 1 when the drive does not answer, 2 for bad arguments.
+6502h, the PDO parameters, the objects of :data:`bridge.adapt.CANDIDATES` and every 60E4h
+sub-index the drive has. SDO cannot tell whether an object is PDO-mappable; ``--eds`` takes
+that from the drive's EDS (its ``PDOMapping`` flags) and names the manufacturer objects that
+could carry the load position (:mod:`bridge.candidates`); CiA 406 encoder nodes are found
+among the nodes heard on the bus and ``--scan`` node-IDs.
+
+Then it prints the load-scale candidates, the start-up's plan for the profile it writes --
+or **every** problem the start-up would stop on, each with its object, what the drive showed
+and the profile key that replaces it (one round of commissioning, not one per problem). The
+written profile is consistent with what the probe found: its load source is the best usable
+candidate (never an object the EDS marks not mappable). Exit 0 either way (the profile is
+for the user to complete); 1 when the drive does not answer, 2 for bad arguments.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import can
 import canopen
 from canopen.objectdictionary import ODVariable
 
-from virtual_bus import BusConfig, open_bus
+from virtual_bus import BusConfig, cli, open_bus
 from virtual_bus.contract import NmtCommand
 from virtual_bus.formats.axis import AxisKind
 
+from . import candidates as cand
 from .adapt import (
     CANDIDATES,
     CSV_BIT,
@@ -67,14 +76,19 @@ COMMISSIONING_FIELDS = (
 )
 
 
+def import_eds(path: Path, node_id: int) -> canopen.ObjectDictionary:
+    """The drive's EDS (BridgeConfigError, one line, when it cannot be read)."""
+    try:
+        return canopen.import_od(str(path), node_id)
+    except Exception as exc:  # the EDS parser raises many kinds
+        raise BridgeConfigError(f"{path}: cannot import EDS ({exc})") from None
+
+
 def mappable_from_eds(path: Path, node_id: int) -> frozenset[ObjectKey]:
     """The bridge's candidate objects and the drive's manufacturer INTEGER32/UNSIGNED32
     objects (candidates for a vendor load position) that the EDS marks PDO-mappable."""
-    try:
-        od = canopen.import_od(str(path), node_id)
-    except Exception as exc:  # the EDS parser raises many kinds
-        raise BridgeConfigError(f"{path}: cannot import EDS ({exc})") from None
-    wanted = set(CANDIDATES)
+    od = import_eds(path, node_id)
+    wanted = set(CANDIDATES) | {(0x60E4, s) for s in range(0xFF)}
     found: set[ObjectKey] = set()
     for index in od:
         obj = od[index]
@@ -88,19 +102,27 @@ def mappable_from_eds(path: Path, node_id: int) -> frozenset[ObjectKey]:
 
 
 def profile_from_facts(
-    facts: DriveFacts, name: str, mappable: frozenset[ObjectKey] | None
+    facts: DriveFacts,
+    name: str,
+    mappable: frozenset[ObjectKey] | None,
+    load: cand.LoadCandidate | None = None,
 ) -> DriveProfile:
     """The profile a probe can write: identity, mode, PDOs, mappable objects, the scaling
-    the drive's objects give, the load position if 60E4h has it (else motor)."""
+    the drive's objects give (left out when implausible: the plan says why), the load
+    position from ``load`` (the best candidate, :func:`bridge.candidates.best`; without one:
+    60E4h where the mappable list allows it, else motor)."""
     modes = facts.supported_modes or 0
     mode = ModeChoice.CSV if modes & CSV_BIT else ModeChoice.PV if modes & PV_BIT else None
-    var = len(facts.objects.get((0x60E4, 0), b"")) == 4
-    if facts.has((0x60E4, 1)) and not var:
-        source = LoadSource.ADDITIONAL_SUB1
-    elif var:
-        source = LoadSource.ADDITIONAL_VAR
-    else:
-        source = LoadSource.MOTOR
+    if load is None:
+        found = cand.additional_position(facts, None)
+        usable = [c for c in found if mappable is None or c.key in mappable]
+        load = cand.best(usable)
+    source, load_object, load_type, encoder_id = LoadSource.MOTOR, None, "i32", None
+    if load is not None:
+        source = load.source
+        if load.source is LoadSource.VENDOR:
+            load_object, load_type = load.key, load.type_name or "i32"
+        encoder_id = load.encoder_id
     try:
         position: float | None = position_units_per_rev(facts, DriveProfile(), 0)
     except DriveSetupError:
@@ -118,6 +140,9 @@ def profile_from_facts(
         max_entries=min(entries) if entries else 8,
         mappable=mappable,
         load_source=source,
+        load_object=load_object,
+        load_object_type=load_type,
+        encoder_id=encoder_id,
         position_increments_per_rev=position,
         rated_torque_mnm=rated,
     )
@@ -166,57 +191,243 @@ def describe(facts: DriveFacts) -> str:
     return "\n".join(lines)
 
 
-def probe_drive(bus: can.BusABC, drive_id: int, setup: DriveSetup | None = None) -> DriveFacts:
-    """Read the drive ``drive_id`` on ``bus`` (NMT pre-operational, then reads only)."""
+@dataclass(frozen=True)
+class ProbeResult:
+    """What a probe read: the drive's facts and the CiA 406 encoder nodes it found."""
+
+    facts: DriveFacts
+    encoder_nodes: tuple[int, ...] = ()
+
+
+#: SDO timeout of a scan for encoder nodes (a node that is not there costs this, once).
+SCAN_TIMEOUT_S = 0.05
+
+
+def _more_60e4(master: DriveMaster, facts: DriveFacts) -> DriveFacts:
+    """60E4h sub-indices 02h.. the drive has (an array's sub-index 0 counts them)."""
+    sub0 = facts.objects.get((0x60E4, 0))
+    if sub0 is None or len(sub0) != 1 or sub0[0] < 2:
+        return facts
+    objects = dict(facts.objects)
+    for sub in range(2, min(sub0[0], 8) + 1):
+        raw = master.try_read(0x60E4, sub)
+        if raw is not None:
+            objects[(0x60E4, sub)] = raw
+    return replace(facts, objects=objects)
+
+
+def _is_encoder(network: canopen.Network, node_id: int, setup: DriveSetup) -> bool:
+    """Node ``node_id`` answers 1000h with CiA 406 in its low word."""
+    node = canopen.RemoteNode(node_id, canopen.ObjectDictionary())
+    network.add_node(node)
+    try:
+        master = DriveMaster(node, replace(setup, sdo_timeout_s=SCAN_TIMEOUT_S, sdo_retries=1))
+        with contextlib.suppress(DriveSetupError):
+            raw = master.try_read(0x1000, 0)
+            return raw is not None and len(raw) >= 2 and int.from_bytes(raw[:2], "little") == 406
+        return False
+    finally:
+        del network[node_id]
+
+
+def probe_drive(
+    bus: can.BusABC,
+    drive_id: int,
+    setup: DriveSetup | None = None,
+    scan: tuple[int, ...] = (),
+    extra: tuple[ObjectKey, ...] = (),
+) -> ProbeResult:
+    """Read the drive ``drive_id`` on ``bus`` (NMT pre-operational, then reads only), and
+    the objects ``extra`` (vendor load-scale candidates of its EDS: present or not); check
+    the nodes heard on the bus (heartbeat, boot-up) and those of ``scan`` for CiA 406."""
+    setup = setup or DriveSetup()
     network = canopen.Network(bus)
     drive = canopen.RemoteNode(drive_id, canopen.ObjectDictionary())
     network.add_node(drive)
-    master = DriveMaster(drive, setup or DriveSetup())
+    master = DriveMaster(drive, setup)
+    heard: set[int] = set()
 
     def handle(msg: can.Message) -> None:
+        if 0x701 <= msg.arbitration_id <= 0x77F and not msg.is_extended_id:
+            heard.add(msg.arbitration_id - 0x700)
         network.notify(msg.arbitration_id, msg.data, msg.timestamp)
 
     with pumping(bus.recv, handle, "bridge-probe"):
         drive.nmt.send_command(NmtCommand.ENTER_PRE_OPERATIONAL)
-        return master.read_facts()
+        facts = _more_60e4(master, master.read_facts())
+        if extra:
+            objects = dict(facts.objects)
+            for key in extra:
+                raw = master.try_read(*key)
+                if raw is not None:
+                    objects[key] = raw
+            facts = replace(facts, objects=objects)
+        others = sorted((heard | set(scan)) - {drive_id})
+        encoders = tuple(n for n in others if _is_encoder(network, n, setup))
+    return ProbeResult(facts, encoders)
+
+
+def _node_range(text: str) -> tuple[int, ...]:
+    """``--scan 3-10`` / ``--scan 5`` / ``--scan 3,5,7`` -> node-IDs (1..127)."""
+    ids: list[int] = []
+    for part in text.split(","):
+        low, dash, high = part.strip().partition("-")
+        try:
+            first = int(low)
+            last = int(high) if dash else first
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r}: node-IDs like 5, 3-10 or 3,5,7") from None
+        if not 1 <= first <= last <= 127:
+            raise argparse.ArgumentTypeError(f"{text!r}: node-IDs 1..127, low-high")
+        ids += range(first, last + 1)
+    return tuple(sorted(set(ids)))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
     parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
     parser.add_argument("--bitrate", type=int, default=1_000_000, help="bit/s (default 1000000)")
-    parser.add_argument("--drive-id", type=int, required=True, help="the drive's node-ID")
-    parser.add_argument("--eds", type=Path, help="the drive's EDS: which objects are mappable")
+    parser.add_argument("--drive-id", type=cli.node_id, required=True, help="the drive's node-ID")
+    parser.add_argument(
+        "--eds",
+        type=cli.existing_file,
+        help="the drive's EDS: which objects are mappable, which vendor objects could carry "
+        "the load position",
+    )
+    parser.add_argument(
+        "--scan",
+        type=_node_range,
+        default=(),
+        metavar="IDS",
+        help="also look for CiA 406 encoder nodes at these node-IDs (5, 3-10, 3,5,7; "
+        f"{SCAN_TIMEOUT_S:g} s each that does not answer); nodes heard on the bus are checked "
+        "anyway",
+    )
     parser.add_argument("--name", help="profile name (default: from 1018h)")
-    parser.add_argument("--out", type=Path, help="write the drive profile (TOML) here")
+    parser.add_argument("--out", type=cli.new_file, help="write the drive profile (TOML) here")
 
 
 def run(args: argparse.Namespace) -> int:
     drive_id = check_node_id("--drive-id", args.drive_id)
+    od = import_eds(args.eds, drive_id) if args.eds is not None else None
     mappable = mappable_from_eds(args.eds, drive_id) if args.eds is not None else None
     bus = open_bus(BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate))
+    extra = tuple(c.key for c in cand.vendor_objects(od) if c.key) if od is not None else ()
     try:
-        facts = probe_drive(bus, drive_id)
+        result = probe_drive(bus, drive_id, scan=args.scan, extra=extra)
     finally:
         bus.shutdown()
-    return report(facts, drive_id, mappable, args.name, args.out)
+    return report(result, drive_id, mappable, args.name, args.out, od)
+
+
+def identity_name(facts: DriveFacts) -> str:
+    """A profile name from 1018h, saying which part was not readable."""
+
+    def shown(value: int | None) -> str:
+        return "unreadable" if value is None else f"0x{value:08X}"
+
+    return f"vendor {shown(facts.vendor_id)} product {shown(facts.product_code)}"
+
+
+def load_candidates(
+    result: ProbeResult, mappable: frozenset[ObjectKey] | None, od: canopen.ObjectDictionary | None
+) -> list[cand.LoadCandidate]:
+    """Every load-scale candidate the probe saw: 60E4h sub-indices, vendor objects of the
+    EDS the drive answers, CiA 406 nodes."""
+    facts = result.facts
+    found = cand.additional_position(facts, od)
+    if od is None and mappable is not None:
+        found = [replace(c, mappable=c.key in mappable) for c in found]
+    if od is not None:  # the ones the drive answered (an EDS may list more than it has)
+        found += [c for c in cand.vendor_objects(od) if c.key in facts.objects]
+    found += [cand.encoder_node(n) for n in result.encoder_nodes]
+    return found
+
+
+def static_mapping(
+    od: canopen.ObjectDictionary, profile: DriveProfile, drive_id: int
+) -> list[DriveSetupError]:
+    """PDOs of the profile whose COB-ID or mapping the EDS marks read-only: the start-up
+    could not configure them (a drive with a static mapping)."""
+    found = []
+    pdos = [(True, n) for n in profile.tpdos] + [(False, profile.rpdo)]
+    usable_tpdo = False
+    for transmit, number in pdos:
+        comm = (0x1800 if transmit else 0x1400) + number - 1
+        mapping = (0x1A00 if transmit else 0x1600) + number - 1
+        fixed = []
+        for index, sub in ((comm, 1), (mapping, 0), (mapping, 1)):
+            obj = od.get(index)
+            var = None if obj is None or isinstance(obj, ODVariable) else obj.get(sub)
+            if var is not None and var.access_type in ("ro", "const"):
+                fixed.append(f"{index:04X}h:{sub:02X}")
+        if obj is None:
+            continue
+        name = f"{'TPDO' if transmit else 'RPDO'}{number}"
+        if not fixed:
+            usable_tpdo = usable_tpdo or transmit
+            continue
+        if not transmit:
+            found.append(
+                DriveSetupError(
+                    f"drive {drive_id}: {name} cannot be configured, the EDS marks "
+                    f"{', '.join(fixed)} read-only (a static mapping): set pdo.rpdo to an RPDO "
+                    "the bridge may map (6040h + 60FFh)",
+                    index=mapping,
+                    subindex=0,
+                )
+            )
+    if not usable_tpdo:
+        found.append(
+            DriveSetupError(
+                f"drive {drive_id}: none of the TPDOs {list(profile.tpdos)} can be configured "
+                "(the EDS marks their COB-ID or mapping read-only: a static mapping); the "
+                "bridge needs TPDOs it can map",
+                index=0x1A00,
+                subindex=0,
+            )
+        )
+    return found
 
 
 def report(
-    facts: DriveFacts,
+    result: ProbeResult | DriveFacts,
     drive_id: int,
     mappable: frozenset[ObjectKey] | None,
     name: str | None,
     out: Path | None,
+    od: canopen.ObjectDictionary | None = None,
 ) -> int:
-    """Print what was found and the start-up's plan; write the profile to ``out``."""
-    name = name or f"vendor 0x{facts.vendor_id or 0:08X} product 0x{facts.product_code or 0:08X}"
-    profile = profile_from_facts(facts, name, mappable)
+    """Print what was found, the load-scale candidates and the start-up's plan -- or every
+    problem it would stop on; write the profile to ``out``."""
+    if isinstance(result, DriveFacts):
+        result = ProbeResult(result)
+    facts = result.facts
+    found = load_candidates(result, mappable, od)
+    chosen = cand.best(found)
+    profile = profile_from_facts(facts, name or identity_name(facts), mappable, chosen)
     print(describe(facts))
+    if found:
+        print(f"load-scale candidates ({len(found)}):")
+        for c in sorted(found, key=lambda c: (c.encoder_id is not None, c.key or (0, 0))):
+            mark = "*" if c is chosen else " "
+            print(f"  {mark} {c.describe()}")
+    else:
+        print(
+            "load-scale candidates: none seen (no 60E4h"
+            + ("" if od is not None else "; --eds names vendor objects")
+            + "; --scan looks for CiA 406 encoder nodes)"
+        )
+    fixed = static_mapping(od, profile, drive_id) if od is not None else []
     try:
         the_plan = plan(facts, profile, drive_id, LOAD_INCREMENTS_PER_UNIT[AxisKind.LINEAR])
+        if fixed:
+            raise fixed[0]
     except DriveSetupError as exc:
-        print(f"start-up would stop: {exc}")
+        problems = [*(exc.problems or (exc,)), *(p for p in fixed if p is not exc)]
+        print(f"start-up would stop: {len(problems)} problem(s), all of them:")
+        for i, problem in enumerate(problems, start=1):
+            print(f"  {i}. {problem}")
     else:
         print(f"start-up plan: 6060h = {int(the_plan.mode)} ({the_plan.mode.name})")
         print(the_plan.layout.describe())
@@ -226,8 +437,10 @@ def report(
         comments = (
             f"Drive profile written by `python -m bridge probe` (drive node {drive_id}).",
             "Keys and units: docs/commissioning.md. Add what a probe cannot know:",
-            "[load] source/object/increments_per_unit, [scaling] if not read from the drive.",
+            "[load] increments_per_unit, [scaling] if not read from the drive.",
         )
+        if chosen is not None:
+            comments += (f"load source: the best candidate the probe saw, {chosen.describe()}",)
         out.write_text(render_profile(profile, comments), encoding="utf-8")
         print(f"wrote {out}")
     return 0

@@ -167,7 +167,7 @@ class DriveProfile:
             raise bad("load_source", f"one of {[s.value for s in LoadSource]}")
         if (self.load_source is LoadSource.VENDOR) != (self.load_object is not None):
             raise bad("load_object", 'required with load_source = "vendor" and only then')
-        if self.load_object_type not in OBJECT_TYPES:
+        if not isinstance(self.load_object_type, str) or self.load_object_type not in OBJECT_TYPES:
             raise bad("load_object_type", f"one of {sorted(OBJECT_TYPES)}")
         enc = self.encoder_id
         if (self.load_source is LoadSource.ENCODER) != (enc is not None):
@@ -256,7 +256,7 @@ def load_profile(path: str | Path) -> DriveProfile:
     """Read and validate a drive profile (:class:`ProfileError`, one line, on any fault)."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark is no key
     except OSError as exc:
         raise ProfileError(f"{path}: cannot read ({exc.strerror})", path=str(path)) from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

@@ -1,4 +1,5 @@
-"""``python -m hil COMMAND``: the bridge against the simulated drive (demo, bench).
+"""``python -m hil COMMAND``: the bridge against the simulated drive (demo, bench) and its
+commissioning on the simulated axis offline (tune, freqresp).
 
 Each command is a module under :mod:`hil.commands` run by :mod:`virtual_bus.cli`, with the
 same failures as ``python -m bridge`` (one line; 2 for bad input, 1 for a failing drive or
@@ -14,15 +15,16 @@ from bridge.__main__ import FAILURES as BRIDGE_FAILURES
 from bridge.__main__ import quiet_sdo_client_logging
 from plant_sim.__main__ import SIM_MODULES
 from plant_sim.errors import PlantSimError
+from regulator.errors import RegulatorError
 from virtual_bus import cli
 
 PROG = "python -m hil"
-COMMANDS = ("demo", "bench")
+COMMANDS = ("demo", "bench", "tune", "freqresp")
 DESCRIPTION = (
     "Hardware in the loop without hardware: the bridge (python -m bridge) closing the loop "
     "over CANopen against the simulated CiA 402 drive (python -m plant_sim drive)."
 )
-FAILURES = (*BRIDGE_FAILURES, cli.Failure((PlantSimError,)))
+FAILURES = (*BRIDGE_FAILURES, cli.Failure((PlantSimError, RegulatorError)))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -107,3 +107,10 @@ def local_rig(
             client.disconnect()
     finally:
         server.disconnect()
+
+
+#: Two drives the project was not written against (shared/vendor_eds/README.md): Faulhaber's
+#: MCBL 300x CO (profile velocity, writable mappings of 4 entries, no 6077h/60E4h) and MCBL-CF
+#: (no 6502h, a static mapping: 6064h/606Ch/60FFh not PDO-mappable).
+FAULHABER_CO_EDS = VENDOR_EDS / "faulhaber_mcbl_co.eds"
+FAULHABER_CF_EDS = VENDOR_EDS / "faulhaber_mcbl_cf.eds"

@@ -1,7 +1,9 @@
-"""Helpers of the bridge tests: the stepped loop without a bus.
+"""Helpers of the bridge tests: the stepped loop without a bus, the bridge on a bus.
 
 :class:`PayloadDrive` is plant_sim's AxisPlant behind the contract's PDO scaling with the
 one-cycle set point delay; :func:`run_loop` closes the loop with a CycleController.
+:func:`paper_bridge` is the bridge of the paper's axis on a bus, :func:`idle_bridge` the same
+started without a drive and answering SDO, :func:`sdo_tool` python-canopen's master of it.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import can
 import canopen
@@ -17,16 +20,21 @@ import pytest
 from canopen.sdo import SdoAbortedError
 
 from bridge import od as objdict
-from bridge.cycle import CycleController
+from bridge.cycle import Command, CycleController
 from bridge.layout import RPDO1_STRUCT, TPDO1_STRUCT, TPDO2_STRUCT
+from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
 from bridge.scaling import MOTOR_INCREMENTS_PER_RAD, Scaling
+from bridge.timing import LockstepPacer
 from plant_sim.physics.model import AxisPlant, KernelOptions
 from plant_sim.physics.simulate import References
 from regulator import RegulatorConfig
 from virtual_bus.formats.axis import AxisConfig, load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
+#: The paper's axis with the guideway friction that shows section X's limit cycle
+#: (plant_sim.paper.outputs.LIMIT_CYCLE_VISCOUS).
+LIMIT_CYCLE_AXIS = AXIS.with_values({"friction.viscous": 5.0})
 
 RATED_TORQUE_NM = 100.0
 OPERATION_ENABLED = 0x0027
@@ -84,6 +92,27 @@ def run_loop(c: CycleController, drive: PayloadDrive, refs: References) -> dict[
         out["omega_r"][k] = c.omega_r
         drive.advance(bytes(rpdo), refs.disturbance_nm[k])
     return out
+
+
+def paper_bridge(bus: can.BusABC, config: BridgeConfig | None = None) -> Bridge:
+    """The bridge of the paper's axis (its defaults) on ``bus``, paced in lockstep at 1 ms."""
+    params = BridgeParams.for_axis(AXIS)
+    return Bridge(bus, params, AXIS.kind, LockstepPacer(0.001), config=config or BridgeConfig())
+
+
+@contextlib.contextmanager
+def idle_bridge(bus: can.BusABC, store: Path | None = None) -> Iterator[Bridge]:
+    """:func:`paper_bridge` started without a drive (no drive answers on ``bus``), disabled,
+    serving SDO, with its parameter store at ``store``; closed at the end (a "restart" is a
+    second block on the same bus and store file)."""
+    bridge = paper_bridge(bus, BridgeConfig(store_path=store))
+    try:
+        bridge.start(configure_drive=False)
+        bridge.controller.command(Command.DISABLE)
+        with bridge.serving():
+            yield bridge
+    finally:
+        bridge.close()
 
 
 @contextlib.contextmanager

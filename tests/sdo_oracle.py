@@ -3,9 +3,10 @@
 Written independently of the servers (virtual_bus.sdo_server, bridge.objects,
 plant_sim.drive.od): the EDS is read with :mod:`configparser` (not canopen), the data type
 sizes come from CiA 301 table 44 written out here, and the order of the checks is the one of
-CiA 301 7.2.4 / CANopenNode: object, sub-index, access, length, value against the EDS limits,
-then the application. :func:`expected` returns the abort code a write must get, or
-:data:`APPLICATION` when only the device's own rules decide (success or a value/state code).
+CiA 301 7.2.4 / CANopenNode: object, sub-index, access, length, value against the EDS limits
+(REAL32 too, NaN outside every range), then the application. :func:`expected` returns the
+abort code a write must get, or :data:`APPLICATION` when only the device's own rules decide
+(success or a value/state code).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ _TYPES = {
     0x0008: (4, "f"),  # REAL32
 }
 VISIBLE_STRING = 0x0009
+REAL32 = 0x0008
 
 
 @dataclass(frozen=True)
@@ -58,8 +60,8 @@ class Declared:
     subindex: int
     data_type: int
     access: str
-    low: int | None
-    high: int | None
+    low: int | float | None
+    high: int | float | None
     default: str
 
     @property
@@ -99,13 +101,15 @@ def read_eds(path: Path, node_id: int) -> dict[tuple[int, int], Declared]:
         index, sub = int(m.group(1), 16), int(m.group(2) or "0", 16)
         low = s.get("LowLimit")
         high = s.get("HighLimit")
+        data_type = int(s["DataType"], 0)
+        number = float if data_type == REAL32 else lambda text: _int(text, node_id)
         out[(index, sub)] = Declared(
             index,
             sub,
-            int(s["DataType"], 0),
+            data_type,
             s["AccessType"].strip().lower(),
-            None if low in (None, "") else _int(low, node_id),
-            None if high in (None, "") else _int(high, node_id),
+            None if low in (None, "") else number(low),
+            None if high in (None, "") else number(high),
             s.get("DefaultValue", ""),
         )
     return out
@@ -128,12 +132,14 @@ def expected(od: dict[tuple[int, int], Declared], index: int, sub: int, data: by
             return LENGTH_TOO_LOW
         if obj.data_type == 0x0001:
             return APPLICATION if data[0] in (0, 1) else VALUE_RANGE
-        if obj.data_type != 0x0008:
-            value = obj.unpack(data)
-            if obj.low is not None and value < obj.low:
-                return TOO_LOW
-            if obj.high is not None and value > obj.high:
-                return TOO_HIGH
+        value = obj.unpack(data)
+        limited = obj.low is not None or obj.high is not None
+        if obj.data_type == REAL32 and value != value and limited:
+            return VALUE_RANGE  # NaN is in no range
+        if obj.low is not None and value < obj.low:
+            return TOO_LOW
+        if obj.high is not None and value > obj.high:
+            return TOO_HIGH
     return APPLICATION
 
 

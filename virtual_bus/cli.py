@@ -196,25 +196,24 @@ def _stdout_gone() -> bool:
 
 
 # --- argument types -----------------------------------------------------------------------------
-def _number(text: str) -> float:
+def _number(
+    text: str,
+    allowed: Callable[[float], bool] = math.isfinite,
+    rule: str = "must be a finite number",
+) -> float:
+    """``text`` as a float for which ``allowed`` holds; ArgumentTypeError saying ``rule``."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number")
+    if not allowed(value):
+        raise argparse.ArgumentTypeError(f"{text!r}: {rule}")
     return value
 
 
 def positive_float(text: str) -> float:
     """A finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text!r}: must be a finite number > 0")
-    return value
+    return _number(text, lambda v: math.isfinite(v) and v > 0, "must be a finite number > 0")
 
 
 def bounded_float(low: float, high: float) -> Callable[[str], float]:
@@ -229,30 +228,30 @@ def bounded_float(low: float, high: float) -> Callable[[str], float]:
     return parse
 
 
+def integer(text: str, low: int, high: int | None, rule: str) -> int:
+    """``text`` as a whole number in [low, high] (``high`` None: no upper bound);
+    ArgumentTypeError "is not an integer" or ``rule``."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < low or (high is not None and value > high):
+        raise argparse.ArgumentTypeError(f"{text!r}: {rule}")
+    return value
+
+
 def bounded_int(low: int, high: int) -> Callable[[str], int]:
     """A whole number in [low, high]."""
 
     def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-        if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"{text!r}: allowed {low}..{high}")
-        return value
+        return integer(text, low, high, f"allowed {low}..{high}")
 
     return parse
 
 
 def count(text: str) -> int:
     """A whole number >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: must be >= 1")
-    return value
+    return integer(text, 1, None, "must be >= 1")
 
 
 #: CiA 301: node-IDs 1..127.

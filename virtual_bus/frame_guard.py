@@ -4,10 +4,12 @@ A node (the bridge, the simulated drive) builds a :class:`FrameGuard` with a *cl
 ``classify(cob_id, length) -> FrameFault | None`` knows which COB-IDs the node consumes, the
 length each needs (CiA 301: NMT 2, heartbeat 1, SDO 8, EMCY 8, SYNC 0/1, PDOs their mapping)
 and whether its NMT state allows the service (CiA 301 table 46). Before that the guard
-itself refuses remote (RTR) frames, 29-bit identifiers and error frames, which no service of
-these nodes uses. A refused frame is counted by kind (the node shows the counts in its object
-dictionary) and logged rate-limited (the 1st, 10th, 100th, ... of each kind); it is never
-raised into the loop. ``check`` is cheap: a few comparisons and one call per frame.
+itself refuses remote (RTR) frames, 29-bit identifiers and error frames -- an RTR only after
+the node's optional ``remote(cob_id)`` has declined it (the drive answers an RTR for a TPDO
+that allows one, CiA 301 1800h bit 30). A refused frame is counted by kind (the node shows
+the counts in its object dictionary) and logged rate-limited (the 1st, 10th, 100th, ... of
+each kind); it is never raised into the loop. ``check`` is cheap: a few comparisons and one
+call per frame.
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ class FrameGuard:
     name: the node in log lines. classify: see the module docstring.
     on_refused(fault, cob_id): optional reaction of the node (e.g. the bridge stops the axis on
     a second SYNC producer, counts a bad TPDO in 2107h too); it must not raise.
+    remote(cob_id): optional; answers a remote frame the node serves and returns True (the
+    frame counts as accepted and goes to no handler), else False (refused as REMOTE).
     """
 
     def __init__(
@@ -49,10 +53,12 @@ class FrameGuard:
         name: str,
         classify: Classifier,
         on_refused: Callable[[FrameFault, int], None] | None = None,
+        remote: Callable[[int], bool] | None = None,
     ) -> None:
         self.name = name
         self.classify = classify
         self.on_refused = on_refused
+        self.remote = remote
         self.counts: dict[FrameFault, int] = dict.fromkeys(FrameFault, 0)
         self.accepted = 0
 
@@ -61,6 +67,10 @@ class FrameGuard:
         if msg.is_error_frame:
             fault: FrameFault | None = FrameFault.ERROR_FRAME
         elif msg.is_remote_frame:
+            remote = self.remote
+            if remote is not None and not msg.is_extended_id and remote(msg.arbitration_id):
+                self.accepted += 1
+                return False  # answered by the node; no handler takes a remote frame
             fault = FrameFault.REMOTE
         elif msg.is_extended_id:
             fault = FrameFault.EXTENDED_ID

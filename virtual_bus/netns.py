@@ -28,8 +28,8 @@ import subprocess
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
-from types import TracebackType
 
+from virtual_bus.closing import Closing
 from virtual_bus.errors import NetnsError
 
 #: python-can's UdpMulticastBus.DEFAULT_GROUP_IPv4: the bus channel inside a namespace.
@@ -91,7 +91,7 @@ def netns_problem() -> str | None:
 
 
 @dataclass
-class NetworkNamespace:
+class NetworkNamespace(Closing):
     """A network namespace made by :meth:`create`; :meth:`close` (or the ``with`` block)
     deletes it. Processes still running in it are not killed by the deletion: stop the
     ones you started first (the namespace lives on until they exit)."""
@@ -156,14 +156,3 @@ class NetworkNamespace:
             return
         self._closed = True
         _check(_run_ip(["netns", "delete", self.name]))
-
-    def __enter__(self) -> NetworkNamespace:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()

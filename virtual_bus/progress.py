@@ -22,11 +22,12 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from types import TracebackType
 from typing import TextIO
 
+from .closing import Closing
 
-class Bar:
+
+class Bar(Closing):
     """A counted stage: ``update(n)``, ``set_description(text)`` (a new sub-stage), ``close``.
 
     Compatible with what :func:`plant_sim.diagnosis.engine.diagnose` expects of a progress bar.
@@ -66,17 +67,6 @@ class Bar:
         if self._tqdm is not None:
             self._tqdm.close()
             self._tqdm = None
-
-    def __enter__(self) -> Bar:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 class Progress:

@@ -38,6 +38,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from .cli import integer
 from .errors import RealTimeConfigError, RealTimeRefused
 
 #: mlockall flags (linux/mman.h).
@@ -236,23 +237,13 @@ def add_realtime_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _integer(text: str, low: int, high: int | None, allowed: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < low or (high is not None and value > high):
-        raise argparse.ArgumentTypeError(f"{text!r}: {allowed}")
-    return value
-
-
 def _priority(text: str) -> int:
-    return _integer(text, 1, 99, "a SCHED_FIFO priority is 1..99")
+    return integer(text, 1, 99, "a SCHED_FIFO priority is 1..99")
 
 
 def cpu_number(text: str) -> int:
     """A CPU number (argparse type)."""
-    return _integer(text, 0, None, "a CPU number is >= 0")
+    return integer(text, 0, None, "a CPU number is >= 0")
 
 
 def check_cpu(cpu: int) -> None:

@@ -16,7 +16,8 @@ answers a block upload with a plain upload and lets a short frame raise ``struct
 5. length of a fixed-size data type: more bytes 0607 0012, fewer 0607 0013; a segmented
    download whose data differ from the size it announced 0607 0010;
 6. value against the EDS: BOOLEAN other than 0/1 0609 0030, LowLimit/HighLimit 0609 0032 /
-   0609 0031;
+   0609 0031 (integers, and REAL32/REAL64 with :func:`apply_real_limits`; NaN 0609 0030 where
+   a limit is declared);
 7. the application (the node's write callbacks): any code it raises as
    ``canopen.SdoAbortedError`` (value rules, 0800 0022 device state, ...).
 
@@ -29,14 +30,18 @@ answered with 0504 0001 (the client then uses a segmented download).
 
 from __future__ import annotations
 
+import configparser
 import logging
+import math
+import re
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
 
 import canopen
 from canopen import objectdictionary as cod
-from canopen.objectdictionary.datatypes import BOOLEAN, INTEGER_TYPES
+from canopen.objectdictionary.datatypes import BOOLEAN, FLOAT_TYPES, INTEGER_TYPES
 from canopen.sdo import SdoAbortedError, SdoServer
 
 from virtual_bus.contract import SDO_LENGTH, SdoAbort, sdo_rx_cob_id, sdo_tx_cob_id, type_size
@@ -89,9 +94,11 @@ class _Transfer:
 class CheckedSdoServer(SdoServer):
     """SDO server of ``node`` on 0x600/0x580 + node-ID (see the module docstring)."""
 
-    def __init__(self, node: canopen.LocalNode) -> None:
+    def __init__(self, node: canopen.LocalNode, blocked: Callable[[], bool] | None = None) -> None:
         super().__init__(sdo_rx_cob_id(node.id), sdo_tx_cob_id(node.id), node)
         self._local = node
+        #: while it returns True no request is answered (NMT Stopped, CiA 301 table 46)
+        self._blocked = blocked
         self._transfer = _Transfer()
         #: Requests answered with an abort, and the last code sent (diagnostics).
         self.aborts_sent = 0
@@ -101,6 +108,8 @@ class CheckedSdoServer(SdoServer):
     def on_request(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if len(data) != SDO_LENGTH:
             logger.debug("SDO request with %d bytes ignored (needs 8)", len(data))
+            return
+        if self._blocked is not None and self._blocked():
             return
         command = data[0]
         ccs = command >> 5
@@ -308,10 +317,46 @@ def _check_value(var: cod.ODVariable, data: bytes) -> None:
         if data[0] not in (0, 1):
             raise SdoAbortedError(SdoAbort.VALUE_RANGE)
         return
-    if var.data_type not in INTEGER_TYPES:
+    if var.data_type in FLOAT_TYPES:
+        value = var.decode_raw(data)
+        if math.isnan(value):  # no range holds NaN; a REAL32 object without limits takes it
+            if var.min is not None or var.max is not None:
+                raise SdoAbortedError(SdoAbort.VALUE_RANGE)
+            return
+    elif var.data_type not in INTEGER_TYPES:
         return
-    value = var.decode_raw(data)
+    else:
+        value = var.decode_raw(data)
     if var.min is not None and value < var.min:
         raise SdoAbortedError(SdoAbort.TOO_LOW)
     if var.max is not None and value > var.max:
         raise SdoAbortedError(SdoAbort.TOO_HIGH)
+
+
+_SECTION = re.compile(r"([0-9A-Fa-f]{4})(?:sub([0-9A-Fa-f]{1,2}))?")
+
+
+def apply_real_limits(od: canopen.ObjectDictionary, eds_path: str) -> None:
+    """Give REAL32/REAL64 variables of ``od`` the LowLimit/HighLimit of their EDS.
+
+    python canopen (2.4) reads LowLimit/HighLimit with ``int(text, 0)`` for every data type, so
+    a REAL32 limit written as a decimal number (CiA 306) is silently dropped; the server would
+    then take any value. This reads them as floats (configparser, the EDS's own text)."""
+    parser = configparser.ConfigParser(strict=False, interpolation=None)
+    parser.optionxform = str  # type: ignore[assignment,method-assign]
+    parser.read(eds_path, encoding="utf-8")
+    for section in parser.sections():
+        m = _SECTION.fullmatch(section)
+        if not m:
+            continue
+        index, sub = int(m.group(1), 16), int(m.group(2) or "0", 16)
+        if index not in od:
+            continue
+        obj = od[index]
+        var = obj if isinstance(obj, cod.ODVariable) else obj.subindices.get(sub)
+        if var is None or var.data_type not in FLOAT_TYPES:
+            continue
+        for key, attr in (("LowLimit", "min"), ("HighLimit", "max")):
+            text = parser[section].get(key, "").strip()
+            if text:
+                setattr(var, attr, float(text))

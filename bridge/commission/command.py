@@ -4,8 +4,10 @@ Reads and writes any object of the bridge or the drive (or another node with ``-
 name or index, with the EDS's data types and units (:mod:`bridge.commission.access`); dumps
 all readable objects to a CiA 306 DCF and loads a DCF back (:mod:`bridge.commission.dcf`).
 
-EDS of the node: ``--eds FILE``, else the node is identified by 1000h (device type) and
-1018h:02 (product code) against config/bridge.eds and config/drive.eds.
+EDS of the node: ``--eds FILE``, else the node is identified by 1000h (device type),
+1018h:02 (product code) and 1008h (device name) against config/bridge.eds and config/drive.eds.
+``dump`` leaves out 0001h-0FFFh (data type definitions) and keeps the EDS default where the
+node answers 0800 0024 "no data available" (an empty 1003h entry).
 
 ``load`` writes only what differs from the node's values, in passes (a write refused because
 of another object's value, such as a feed above the speed limit, is retried after the
@@ -35,6 +37,7 @@ from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary import datatypes as dt
 
 from virtual_bus import BusConfig, cli, open_bus
+from virtual_bus.contract import SdoAbort
 from virtual_bus.shipped import DRIVE_EDS
 
 from .. import od as bridge_od
@@ -143,22 +146,29 @@ def _default(od: canopen.ObjectDictionary, index: int, sub: int) -> object:
 
 
 def identify(network: canopen.Network, node_id: int, timeout_s: float) -> Path:
-    """The EDS of :data:`KNOWN_EDS` whose 1000h and 1018h:02 defaults the node shows."""
+    """The EDS of :data:`KNOWN_EDS` whose 1000h, 1018h:02 and 1008h (device name) defaults
+    the node shows (1000h = 0 and product code 0 alone would take any node without a profile
+    and identity, e.g. CANopenNode's demo device, for the bridge)."""
     probe = canopen.RemoteNode(node_id, canopen.ObjectDictionary())
     network.add_node(probe)
     probe.sdo.RESPONSE_TIMEOUT = timeout_s
     access = SdoAccess(probe)
     product: int | None = None
+    name: str | None = None
     try:
         shown = int.from_bytes(access.read_raw(_u32_var(0x1000, 0, "Device type"))[:4], "little")
         with contextlib.suppress(NodeAccessError):
             raw = access.read_raw(_u32_var(0x1018, 2, "Product code"))
             product = int.from_bytes(raw[:4], "little")
+        with contextlib.suppress(NodeAccessError):
+            raw = access.read_raw(ODVariable("Manufacturer device name", 0x1008, 0))
+            name = raw.decode("ascii", "replace")
     finally:
         del network[node_id]
     for path in KNOWN_EDS:
         od = load_eds(path, node_id)
-        if (_default(od, 0x1000, 0), _default(od, 0x1018, 2)) == (shown, product):
+        wanted = (_default(od, 0x1000, 0), _default(od, 0x1018, 2), _default(od, 0x1008, 0))
+        if wanted == (shown, product, name):
             return path
     product_text = "none" if product is None else f"0x{product:08X}"
     raise CommissionInputError(
@@ -198,8 +208,24 @@ def _get(args: argparse.Namespace) -> int:
                 raise CommissionInputError(
                     f"{key_text(var)} {var.name} is write-only ({var.access_type}) per the EDS"
                 )
+        refused = 0
         for var in chosen:
-            print(display(var, access.read(var)))
+            try:
+                print(display(var, access.read(var)))
+            except NodeAccessError as exc:
+                # a silent node ends the command (exit 1); a refused sub-index is shown with
+                # its abort code and the others are still read (a record reads whole)
+                if exc.abort_code is None or len(chosen) == 1:
+                    raise
+                refused += 1
+                print(f"{key_text(var)} {var.name}: not read, {abort_text(exc.abort_code)}")
+        if refused:
+            print(
+                f"python -m bridge config get: node {args.node_id}: {refused} of {len(chosen)} "
+                "objects refused (above)",
+                file=sys.stderr,
+            )
+            return 1
     return 0
 
 
@@ -230,15 +256,18 @@ def _dump(args: argparse.Namespace) -> int:
         refused: list[NodeAccessError] = []
         serial = None
         count = 0
+        no_data: list[NodeAccessError] = []
         for var in variables(od):
-            if var.access_type not in READABLE:
+            # 0001h-0FFFh are data type definitions (an EDS's [DummyUsage]), not parameters
+            if var.access_type not in READABLE or var.index < 0x1000:
                 continue
             try:
                 value = access.read(var)
             except NodeAccessError as exc:
                 if exc.abort_code is None:
                     raise
-                refused.append(exc)
+                # CiA 301 0800 0024 "no data available": e.g. an empty 1003h entry
+                (no_data if exc.abort_code == SdoAbort.NO_DATA else refused).append(exc)
                 continue
             count += 1
             values[key_of(var, od)] = value_text(var, value)
@@ -262,6 +291,8 @@ def _dump(args: argparse.Namespace) -> int:
         )
     out.write_text(text, encoding="utf-8")
     print(f"wrote {out}: {count} objects of node {args.node_id} (EDS {eds_path.name})")
+    for exc in no_data:
+        print(f"no value (EDS default kept): {exc}", file=sys.stderr)
     for exc in refused:
         print(f"not read: {exc}", file=sys.stderr)
     return 1 if refused else 0

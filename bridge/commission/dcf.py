@@ -9,8 +9,9 @@ python-canopen reads too) with ``NodeID``, ``NodeName``, ``Baudrate`` (kbit/s),
 :func:`render_dcf` writes it from the EDS text line by line, so everything the EDS holds
 (comments, Unit/Description, StorageLocation) stays as it was. :func:`read_dcf` reads one
 back strictly: every ParameterValue must name an object of the node's EDS with the same data
-type and be a valid value of it (python-canopen's ``import_od`` skips malformed values
-silently, so it is used to cross-check the files, not to load them).
+type and be a valid value of it, and the numbers of ``[DeviceComissioning]`` must be what
+CiA 306 allows (python-canopen's ``import_od`` skips malformed values silently, so it is used
+to cross-check the files, not to load them). A UTF-8 byte-order mark is allowed.
 """
 
 from __future__ import annotations
@@ -139,7 +140,7 @@ def read_dcf(path: Path, od: canopen.ObjectDictionary, node_id: int) -> DcfValue
     """Read the ParameterValues of the DCF at ``path`` against the node's ``od`` (module
     docstring); CommissionInputError naming the file, section and what is wrong."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark is not a section
     except (OSError, UnicodeDecodeError) as exc:
         raise CommissionInputError(f"{path}: cannot read the DCF ({exc})") from None
     parser = configparser.RawConfigParser(inline_comment_prefixes=(";",), strict=True)
@@ -149,15 +150,7 @@ def read_dcf(path: Path, od: canopen.ObjectDictionary, node_id: int) -> DcfValue
     except configparser.Error as exc:
         first = str(exc).splitlines()[0]
         raise CommissionInputError(f"{path}: not a readable DCF ({first})") from None
-    dcf_node = None
-    if parser.has_section(COMMISSIONING) and parser.has_option(COMMISSIONING, "NodeID"):
-        raw = parser.get(COMMISSIONING, "NodeID")
-        try:
-            dcf_node = int(raw, 0)
-        except ValueError:
-            raise CommissionInputError(
-                f"{path}: [{COMMISSIONING}] NodeID={raw!r} is not a node-ID"
-            ) from None
+    dcf_node = _commissioning(parser, path).get("NodeID")
     values: list[tuple[ODVariable, Value]] = []
     problems: list[str] = []
     for name in parser.sections():
@@ -181,6 +174,39 @@ def read_dcf(path: Path, od: canopen.ObjectDictionary, node_id: int) -> DcfValue
     if not values:
         raise CommissionInputError(f"{path}: no ParameterValue keys: not a DCF with values")
     return DcfValues(values, dcf_node)
+
+
+#: ``[DeviceComissioning]`` keys that are numbers (CiA 306): name -> allowed values
+_COMMISSIONING_NUMBERS: dict[str, tuple[range | tuple[int, ...], str]] = {
+    "NodeID": (range(1, 128), "a node-ID 1..127"),
+    "Baudrate": (
+        (10, 20, 50, 125, 250, 500, 800, 1000),
+        "kbit/s: 10, 20, 50, 125, 250, 500, 800 or 1000",
+    ),
+    "NetNumber": (range(0, 1 << 32), "an UNSIGNED32"),
+    "CANopenManager": ((0, 1), "0 or 1"),
+    "LSS_SerialNumber": (range(0, 1 << 32), "an UNSIGNED32"),
+}
+
+
+def _commissioning(parser: configparser.RawConfigParser, path: Path) -> dict[str, int]:
+    """The numbers of ``[DeviceComissioning]`` that are given (none when it is absent);
+    CommissionInputError naming the key, the value and what CiA 306 allows."""
+    found: dict[str, int] = {}
+    if not parser.has_section(COMMISSIONING):
+        return found
+    for key, (allowed, text) in _COMMISSIONING_NUMBERS.items():
+        if not parser.has_option(COMMISSIONING, key):
+            continue
+        raw = parser.get(COMMISSIONING, key)
+        try:
+            value = int(raw, 0)
+        except ValueError:
+            value = None
+        if value is None or value not in allowed:
+            raise CommissionInputError(f"{path}: [{COMMISSIONING}] {key}={raw!r}: allowed {text}")
+        found[key] = value
+    return found
 
 
 def _variable(od: canopen.ObjectDictionary, key: SectionKey | None, name: str) -> ODVariable:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from regulator import RegulatorConfig
 from regulator.errors import RegulatorError
+from virtual_bus import cli
 from virtual_bus.formats.axis import AxisConfig, load_axis
 
 from ..errors import ScenarioError
@@ -28,6 +29,18 @@ def add_axis_argument(parser: argparse.ArgumentParser, default: Path | None = PA
         metavar="AXIS.toml",
         help="axis file (docs/axis-file.md)"
         + (f"; default {default.relative_to(ROOT)}" if default else ""),
+    )
+
+
+def add_position_cycle_argument(parser: argparse.ArgumentParser, note: str) -> None:
+    """``--position-cycle S``: the axis file's control.position_cycle replaced by S
+    (:func:`read_axis`); ``note`` says what to give."""
+    parser.add_argument(
+        "--position-cycle",
+        type=cli.positive_float,
+        default=None,
+        metavar="S",
+        help=f"override control.position_cycle ({note})",
     )
 
 

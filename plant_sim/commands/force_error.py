@@ -10,10 +10,10 @@ import argparse
 from pathlib import Path
 
 from virtual_bus.formats.axis import load_axis
-from virtual_bus.formats.trace import check_time_base, read_trace
+from virtual_bus.formats.trace import read_trace
 from virtual_bus.progress import Progress
 
-from ..datasets.force_error import relative_force_error
+from ..datasets.force_error import check_replay_input, relative_force_error
 from .common import plain_warnings
 
 NAME = "force_error"
@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     with plain_warnings():
         traces = [(path, read_trace(path)) for path in args.traces]
         for path, trace in traces:
-            check_time_base(trace, axis.control.position_cycle, str(path))
+            check_replay_input(axis, trace, str(path))  # every file before the first replay
     progress = Progress(f"plant_sim {NAME}", quiet=args.quiet)
     results = []
     with progress.bar(len(traces), "simulate in the loop of each recording", "trace") as bar:

@@ -19,7 +19,7 @@ from virtual_bus.progress import Progress
 from ..errors import ScenarioError
 from ..identification import SECTION_IX_PARAMETERS, IdentifyOptions, identify
 from ..physics.model import KernelOptions
-from .common import add_axis_argument, plain_warnings, read_axis
+from .common import add_axis_argument, add_position_cycle_argument, plain_warnings, read_axis
 
 NAME = "identify"
 HELP = "identify load mass and friction from a servo trace (paper section IX, Nelder-Mead)"
@@ -61,13 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="KEY",
         help="leave this physics out of the model, e.g. mechanics.backlash (repeatable)",
     )
-    parser.add_argument(
-        "--position-cycle",
-        type=cli.positive_float,
-        default=None,
-        metavar="S",
-        help="override control.position_cycle (must match the trace's sample time)",
-    )
+    add_position_cycle_argument(parser, "must match the trace's sample time")
     parser.add_argument(
         "--substeps",
         type=cli.bounded_int(1, 10_000),

@@ -27,7 +27,7 @@ from ..paper.outputs import (
     write_paper_outputs,
 )
 from ..paper.scenarios import SectionX, run_section_x
-from .common import add_axis_argument, regulated_axis
+from .common import add_axis_argument, add_position_cycle_argument, regulated_axis
 
 NAME = "paper"
 HELP = "reproduce the paper's section X (Fig. 8, Fig. 9, summary.json, traces)"
@@ -36,13 +36,7 @@ HELP = "reproduce the paper's section X (Fig. 8, Fig. 9, summary.json, traces)"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
     add_axis_argument(parser)
-    parser.add_argument(
-        "--position-cycle",
-        type=cli.positive_float,
-        default=None,
-        metavar="S",
-        help="override control.position_cycle (e.g. 0.0025)",
-    )
+    add_position_cycle_argument(parser, "e.g. 0.0025")
     cli.add_quiet(parser)
 
 

@@ -37,6 +37,7 @@ import numpy as np
 from regulator import RegulatorConfig
 from regulator.errors import RegulatorConfigError
 from virtual_bus.formats.axis import AxisConfig, PositionFeedback
+from virtual_bus.formats.errors import TraceFileError
 from virtual_bus.formats.trace import Trace, check_time_base, uniform_step
 
 from ..errors import ScenarioError
@@ -75,16 +76,27 @@ def replay_substeps(axis: AxisConfig) -> int:
     return max(default_substeps(axis), math.ceil(rate_per_s * c.speed_cycle / LOOP_RATE_DT))
 
 
-def _check_timing(axis: AxisConfig, trace: Trace) -> None:
+def check_replay_input(axis: AxisConfig, trace: Trace, source: str = "trace") -> None:
+    """Refuse (ScenarioError or TraceFileError naming ``source``) a trace :func:`replay`
+    cannot step through: no ``position_reference``, or not one row per position cycle of
+    ``axis``."""
+    if "position_reference" not in trace:
+        raise TraceFileError(
+            f"{source}: no column 'position_reference'; a replay in the loop needs the "
+            f"interpolator output (columns: {', '.join(trace.names)})",
+            column="position_reference",
+        )
     cycle = axis.control.position_cycle
-    check_time_base(trace, cycle)
+    check_time_base(trace, cycle, source)
     step = uniform_step(trace)
     if step is None:
-        raise ScenarioError("trace: time is not uniformly sampled; replay needs one row per cycle")
+        raise ScenarioError(
+            f"{source}: time is not uniformly sampled; replay needs one row per position cycle"
+        )
     if abs(step - cycle) > CYCLE_REL_TOL * cycle:
         raise ScenarioError(
-            f"trace sampled every {step:.4g} s, the axis' control.position_cycle is {cycle:g} s; "
-            "replay needs one trace row per position cycle"
+            f"{source}: sampled every {step:.4g} s, the axis' control.position_cycle is "
+            f"{cycle:g} s; replay needs one trace row per position cycle"
         )
 
 
@@ -95,7 +107,7 @@ def replay(axis: AxisConfig, trace: Trace, options: KernelOptions | None = None)
     ``options``: None uses :func:`replay_substeps`. Raises ScenarioError (trace sampled at
     another cycle than the axis' position_cycle) or TraceFileError (missing column).
     """
-    _check_timing(axis, trace)
+    check_replay_input(axis, trace)
     x_ref = trace["position_reference"]
     dist = trace["disturbance"] if "disturbance" in trace else np.zeros(len(trace))
     refs = References.from_position(x_ref, axis.control.position_cycle, dist)

@@ -39,7 +39,15 @@ import canopen
 import numpy as np
 from canopen.network import NodeScanner
 
-from virtual_bus.contract import NMT_COB_ID, NMT_LENGTH, SDO_LENGTH, SdoAbort
+from virtual_bus.contract import (
+    CAN_ID_MASK,
+    COB_ID_INVALID,
+    COB_ID_NO_RTR,
+    NMT_COB_ID,
+    NMT_LENGTH,
+    SDO_LENGTH,
+    SdoAbort,
+)
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.frame_guard import FrameFault, FrameGuard
 from virtual_bus.framing import NOTHING, FramePort, OutFrame, frame_port
@@ -60,7 +68,7 @@ from .node import (
     WallClockHeartbeat,
     gated,
 )
-from .pdo import PdoEngine
+from .pdo import PdoEngine, PdoKind
 from .protection import EMCY_PDO_LENGTH, EMCY_SYNC_LENGTH, ErrorList, emcy_data_int32
 from .servo import ServoAxis
 
@@ -148,7 +156,7 @@ class SimulatedDrive:
         )
         #: every received frame passes it before a handler (docs/drive.md): on a Network the
         #: drive owns at the listener, on a shared one at each of the drive's subscriptions
-        self.guard = FrameGuard(f"drive {node_id}", self._classify)
+        self.guard = FrameGuard(f"drive {node_id}", self._classify, remote=self._answer_remote)
         self._gate = None if self._own_network else self.guard.admit
         if self._own_network:
             self._network.listeners[:] = [GuardedListener(self._network, self.guard.check)]
@@ -196,6 +204,22 @@ class SimulatedDrive:
                 self._callback_errors.append(exc)
 
         return run
+
+    def _answer_remote(self, cob_id: int) -> bool:
+        """An RTR on the CAN id of a valid TPDO whose 18xxh:01 bit 30 is 0 (CiA 301: RTR
+        allowed), in NMT Operational: the TPDO with its objects' present values (those of the
+        last SYNC). Anything else is refused by the frame guard (2105h:05). Only where the
+        drive owns its network: canopen's listener drops remote frames before any callback."""
+        if self._nmt.state is not NmtState.OPERATIONAL:
+            return False
+        with self._lock:
+            for number in range(1, O.PDO_CHANNELS + 1):
+                channel = self._pdo.channel(PdoKind.TRANSMIT, number)
+                cob = self._pdo.cob_id(channel)
+                if not cob & (COB_ID_INVALID | COB_ID_NO_RTR) and cob & CAN_ID_MASK == cob_id:
+                    self._send(cob_id, self._pdo.frame(channel))
+                    return True
+        return False
 
     def _gated(self, callback: FrameCallback) -> FrameCallback:
         return callback if self._gate is None else gated(self._gate, callback)

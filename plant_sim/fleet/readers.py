@@ -6,7 +6,9 @@ Two formats:
   streaming CSV reader (``pyarrow.csv.open_csv``); the format's rules are checked across
   blocks by the format's own functions (:mod:`virtual_bus.formats.trace`: required columns,
   finite values, strictly increasing time, >= 100 rows, a time step that can be seconds);
-  an empty, NaN or infinite cell of an optional column is a sample without that measurement;
+  an empty, NaN or infinite cell of an optional column is a sample without that measurement
+  (a finite value beyond the format's magnitude limit is refused), a blank line is a row
+  without values (refused in the required columns, as by ``read_trace``);
 * **candump logs** (``candump -l`` format, ``(EPOCH) IFACE ID#DATA``) of a bus with the PDO
   layout of ``docs/canopen_layout.md``: one sample per SYNC, from the drive's TPDO1 (6064h
   motor position, 60E4h:01 load position) and TPDO2 (6077h torque, 606Ch speed) and the
@@ -52,13 +54,16 @@ def read_trace_chunks(path: Path) -> Iterator[Chunk]:
         reader = pacsv.open_csv(
             path,
             read_options=pacsv.ReadOptions(block_size=CSV_BLOCK_BYTES),
+            # a blank line is a row without values, refused in a required column as by
+            # read_trace (Arrow would skip it and shift every line number after it)
+            parse_options=pacsv.ParseOptions(ignore_empty_lines=False),
             convert_options=pacsv.ConvertOptions(strings_can_be_null=False),
         )
+        names = [n.strip().lstrip("\ufeff") for n in reader.schema.names]  # decodes UTF-8
     except (pa.ArrowInvalid, OSError, UnicodeDecodeError) as exc:
         raise RecordingError(
             f"{path}: not a trace file ({first_line(exc)})", path=str(path)
         ) from None
-    names = [n.strip().lstrip("\ufeff") for n in reader.schema.names]
     source = str(path)
     index = {n: i for i, n in enumerate(names)}
     rows, last_t = 0, -math.inf
@@ -76,8 +81,8 @@ def read_trace_chunks(path: Path) -> Iterator[Chunk]:
                         path=source,
                     )
                 values = column.to_numpy(zero_copy_only=False).astype(np.float64, copy=False)
-                if name in trace_format.REQUIRED_COLUMNS:
-                    trace_format.check_values(name, values, rows + 2, source)
+                missing = name not in trace_format.REQUIRED_COLUMNS
+                trace_format.check_values(name, values, rows + 2, source, missing=missing)
                 cols[name] = values
             t = cols["time"]
             trace_format.check_time(t, last_t, rows + 2, source)

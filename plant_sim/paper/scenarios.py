@@ -12,6 +12,7 @@ at standstill until ``END_S`` = 7 s ("final standstill error").
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,13 +69,5 @@ def run_section_x(
 ) -> Trace:
     """One run of section X: ordinary control (Fig. 8) or with the regulator (Fig. 9)."""
     base = regulator or RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
-    reg = RegulatorConfig(
-        kv=base.kv,
-        cycle_s=base.cycle_s,
-        n=base.n,
-        beta_t_rad_s=base.beta_t_rad_s,
-        tv_s=base.tv_s,
-        tf_s=base.tf_s,
-        enabled=with_regulator,
-    )
+    reg = dataclasses.replace(base, enabled=with_regulator)
     return simulate(axis, scenario.references(axis), reg, options)

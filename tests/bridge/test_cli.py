@@ -13,6 +13,7 @@ import pytest
 
 from bridge.__main__ import main
 from plant_sim.drive import DriveConfig, SimulatedDrive, State402
+from tests.command_line import refused_in_one_line
 from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.formats.trace import read_trace
@@ -40,7 +41,12 @@ def test_help(command: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     assert "usage: python -m bridge" in capsys.readouterr().out
 
 
-RUN = ["run", "--interface", "virtual", "--channel", "nobody-here", "--axis", AXIS_FILE]
+def run_on(channel: str, *rest: str) -> list[str]:
+    """``run`` of the paper axis on virtual bus ``channel`` with the options ``rest``."""
+    return ["run", "--interface", "virtual", "--channel", channel, "--axis", AXIS_FILE, *rest]
+
+
+RUN = run_on("nobody-here")
 
 
 @pytest.mark.parametrize(
@@ -101,14 +107,7 @@ RUN = ["run", "--interface", "virtual", "--channel", "nobody-here", "--axis", AX
 def test_bad_arguments_exit_2_with_one_line(
     argv: list[str], fragment: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    try:
-        code = main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    assert code == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err
-    assert fragment in err
+    assert fragment in refused_in_one_line(main, argv, capsys)
 
 
 def test_busload_of_one_axis(capsys: pytest.CaptureFixture[str]) -> None:
@@ -165,25 +164,8 @@ def test_run_against_the_simulated_drive(
 ) -> None:
     channel, drive = drive_on_virtual_bus
     trace_path, log_path = tmp_path / "trace.csv", tmp_path / "bus.log"
-    argv = [
-        "run",
-        "--interface",
-        "virtual",
-        "--channel",
-        channel,
-        "--axis",
-        AXIS_FILE,
-        "--move",
-        "target=0.005,feed=0.05",
-        "--hold",
-        "0.3",
-        "--clock",
-        "lockstep",
-        "--trace",
-        str(trace_path),
-        "--bus-log",
-        str(log_path),
-    ]
+    argv = run_on(channel, "--move", "target=0.005,feed=0.05", "--hold", "0.3", "--clock")
+    argv += ["lockstep", "--trace", str(trace_path), "--bus-log", str(log_path)]
     assert main(argv) == 0
     assert drive.plant.load_position == pytest.approx(0.005, abs=2e-5)
     assert drive.state is State402.SWITCHED_ON  # disabled at the end, latched by a SYNC
@@ -202,20 +184,7 @@ def test_run_exits_1_when_a_fault_stops_the_axis(
 ) -> None:
     channel, _ = drive_on_virtual_bus
     # 0.3 m/s needs 12 mm of following error (eq. 1), above the 5 mm limit
-    argv = [
-        "run",
-        "--interface",
-        "virtual",
-        "--channel",
-        channel,
-        "--axis",
-        AXIS_FILE,
-        "--move",
-        "target=0.5,feed=0.3",
-        "--clock",
-        "lockstep",
-    ]
-    assert main(argv) == 1
+    assert main(run_on(channel, "--move", "target=0.5,feed=0.3", "--clock", "lockstep")) == 1
     out = capsys.readouterr().out
     assert "state STOPPED" in out and "following error" in out
 
@@ -235,23 +204,12 @@ def test_run_applies_the_parameter_store(
     following error, eq. 1) is stopped -- the stored value, not the axis file's 5 mm."""
     channel, _ = drive_on_virtual_bus
     store = _store(tmp_path / "s.json", {"2008h:00": struct.pack("<f", 1e-4).hex()})
-    argv = [
-        *RUN[:4],
-        channel,
-        *RUN[5:],
-        "--move",
-        "target=0.01,feed=0.05",
-        "--clock",
-        "lockstep",
-        "--store",
-        str(store),
-    ]
-    assert main(argv) == 1
+    argv = run_on(channel, "--move", "target=0.01,feed=0.05", "--clock", "lockstep")
+    assert main([*argv, "--store", str(store)]) == 1
     assert "2008h = 0.0001" in capsys.readouterr().out
 
 
 def test_run_refuses_a_store_it_would_refuse(tmp_path: Path, capsys) -> None:
     store = _store(tmp_path / "s.json", {"2000h:00": struct.pack("<f", 5000.0).hex()})
-    assert main([*RUN, "--seconds", "1", "--store", str(store)]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "kv_per_s = 5000.0: too high" in err
+    argv = [*RUN, "--seconds", "1", "--store", str(store)]
+    assert "kv_per_s = 5000.0: too high" in refused_in_one_line(main, argv, capsys)

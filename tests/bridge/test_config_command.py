@@ -23,10 +23,10 @@ from bridge import od as objdict
 from bridge.__main__ import main
 from bridge.cycle import Command
 from bridge.node import Bridge, BridgeConfig
-from bridge.params import BridgeParams
-from bridge.timing import LockstepPacer
 from plant_sim.drive import DriveConfig, SimulatedDrive
 from plant_sim.drive.od import DEFAULT_EDS_PATH as DRIVE_EDS
+from tests.bridge_helpers import paper_bridge
+from tests.command_line import exit_status
 from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.formats.axis import load_axis
 
@@ -74,13 +74,7 @@ def nodes(tmp_path: Path, bus_mode: Interface) -> Iterator[Nodes]:
     config = BusConfig(interface=bus_mode, channel=channel)
     buses = [open_bus(config) for _ in range(3)]
     store = tmp_path / "bridge-store.json"
-    bridge = Bridge(
-        buses[0],
-        BridgeParams.for_axis(AXIS),
-        AXIS.kind,
-        LockstepPacer(0.001),
-        config=BridgeConfig(store_path=store),
-    )
+    bridge = paper_bridge(buses[0], BridgeConfig(store_path=store))
     bridge.start(configure_drive=False)
     bridge.controller.command(Command.DISABLE)
     drive = SimulatedDrive(buses[1], 2, AXIS, DriveConfig())
@@ -99,10 +93,7 @@ def nodes(tmp_path: Path, bus_mode: Interface) -> Iterator[Nodes]:
 
 
 def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    try:
-        code = main(argv)
-    except SystemExit as exc:
-        code = int(exc.code or 0)
+    code = exit_status(main, argv)
     out, err = capsys.readouterr()
     return code, out, err
 
@@ -126,7 +117,11 @@ def writable_snapshot(node: canopen.RemoteNode) -> dict[tuple[int, int], bytes]:
 
 def with_value(dcf: str, section: str, value: str) -> str:
     """``dcf`` with the ParameterValue of ``[section]`` replaced."""
-    pattern = re.compile(rf"(\[{section}\][^\[]*?ParameterValue=)[^\n]*", re.IGNORECASE)
+    # the section's lines up to its ParameterValue (a Description may hold "[requires ...]")
+    pattern = re.compile(
+        rf"(^\[{section}\]\n(?:(?!\[)[^\n]*\n)*?ParameterValue=)[^\n]*",
+        re.IGNORECASE | re.MULTILINE,
+    )
     new, count = pattern.subn(lambda m: m[1] + value, dcf)
     assert count == 1, section
     return new
@@ -395,13 +390,7 @@ def test_load_and_save_survives_a_restart(
     code, out, _ = run(nodes.argv("load", 1, str(dcf), "--save"), capsys)
     assert code == 0 and "stored (1010h:01 = save)" in out
     assert nodes.store.is_file()
-    restarted = Bridge(
-        nodes.bridge.port.bus,
-        BridgeParams.for_axis(AXIS),
-        AXIS.kind,
-        LockstepPacer(0.001),
-        config=BridgeConfig(store_path=nodes.store),
-    )
+    restarted = paper_bridge(nodes.bridge.port.bus, BridgeConfig(store_path=nodes.store))
     assert restarted.controller.params.kv_per_s == 30.0
     restarted.close()
     # the drive has no 1010h: --save is refused before anything is sent

@@ -33,17 +33,14 @@ from plant_sim.physics.model import KernelOptions
 from plant_sim.physics.simulate import simulate
 from regulator import RegulatorConfig
 from tests.bridge_helpers import (  # tests/ helper module
+    AXIS,
     FAULT,
+    LIMIT_CYCLE_AXIS,
     PayloadDrive,
     controller,
     run_loop,
 )
-from virtual_bus.formats.axis import load_axis
 
-AXIS = load_axis("config/paper_axis.toml")
-#: The paper's axis with the guideway friction that shows section X's limit cycle
-#: (plant_sim.paper.outputs.LIMIT_CYCLE_VISCOUS).
-LIMIT_CYCLE_AXIS = AXIS.with_values({"friction.viscous": 5.0})
 #: Section X compressed: disturbance 0.5-1.0 s, feed until 2.5 s (limit cycle after 1.0 s).
 SHORT_X = SectionX(disturbance_start_s=0.5, disturbance_end_s=1.0, stop_s=2.5, end_s=2.6)
 

@@ -8,10 +8,12 @@ drive's own state (its CiA 402 state, its plant) for the stops.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import struct
 import threading
 from collections.abc import Iterator
+from typing import Any
 
 import can
 import numpy as np
@@ -21,21 +23,21 @@ from bridge.cycle import BridgeState, Command, StopReason
 from bridge.interpolator import Move, Table
 from bridge.layout import TPDO1_STRUCT
 from bridge.params import BridgeParams
-from hil.harness import play_references, simulated_axis
+from hil.harness import SimulatedAxis, play_references, simulated_axis
 from plant_sim.drive import State402
 from plant_sim.paper.scenarios import SectionX
+from plant_sim.physics.simulate import References
 from regulator import RegulatorConfig
 from tests.bridge_helpers import (  # tests/ helper module
+    AXIS,
+    LIMIT_CYCLE_AXIS,
     PayloadDrive,
     controller,
     disturbance_in_mnm,
     run_loop,
 )
 from virtual_bus import BusConfig, Direction, FaultConfig, FaultKind, Interface, open_bus
-from virtual_bus.formats.axis import load_axis
 
-AXIS = load_axis("config/paper_axis.toml")
-LIMIT_CYCLE_AXIS = AXIS.with_values({"friction.viscous": 5.0})
 #: Section X compressed (limit cycle after 1.0 s without the regulator); 1.6 s.
 SHORT_X = SectionX(disturbance_start_s=0.5, disturbance_end_s=1.0, stop_s=1.5, end_s=1.6)
 DRIVE_ID = 2
@@ -45,6 +47,20 @@ TPDO_IDS = (0x180 + DRIVE_ID, 0x280 + DRIVE_ID)
 def params(axis=AXIS, enabled: bool = True, **changes: object) -> BridgeParams:
     reg = RegulatorConfig(kv=25.0, cycle_s=0.001, enabled=enabled)
     return dataclasses.replace(BridgeParams.for_axis(axis, reg), **changes)
+
+
+@contextlib.contextmanager
+def limit_cycle_over_bus(
+    enabled: bool, bus_mode: Interface, **options: Any
+) -> Iterator[tuple[References, SimulatedAxis]]:
+    """:data:`SHORT_X` on the limit-cycle axis over the bus with the simulated drive: its
+    references (the disturbance in the whole mN·m the drive holds in 2100h) and the axis."""
+    refs = disturbance_in_mnm(SHORT_X.references(LIMIT_CYCLE_AXIS))
+    config = params(LIMIT_CYCLE_AXIS, enabled)
+    with simulated_axis(
+        LIMIT_CYCLE_AXIS, config, interface=bus_mode, disturbance=refs.disturbance_nm, **options
+    ) as sim:
+        yield refs, sim
 
 
 class TamperBus(can.BusABC):
@@ -98,14 +114,7 @@ def test_loop_over_the_bus_equals_the_stepped_loop(bus_mode: Interface, enabled:
     """Over the bus (SDO start-up, SYNC, TPDOs, RPDO, the drive's CiA 402 machine, 2100h
     disturbance) the loop is the stepped loop of test_bridge_cycle, value for value: the
     bus adds nothing but the PDO scaling that the stepped loop has too."""
-    refs = SHORT_X.references(LIMIT_CYCLE_AXIS)
-    refs = disturbance_in_mnm(refs)  # the drive holds 2100h in whole mN·m
-    with simulated_axis(
-        LIMIT_CYCLE_AXIS,
-        params(LIMIT_CYCLE_AXIS, enabled),
-        interface=bus_mode,
-        disturbance=refs.disturbance_nm,
-    ) as sim:
+    with limit_cycle_over_bus(enabled, bus_mode) as (refs, sim):
         run = play_references(sim, refs)
         assert sim.drive.sync_count == refs.position.size
     assert run.state is BridgeState.RUNNING and run.counters.missed == 0

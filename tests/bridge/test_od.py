@@ -24,9 +24,7 @@ from bridge.eds import render_eds
 from bridge.errors import SdoAbort
 from bridge.layout import TPDO1_STRUCT, TPDO2_STRUCT
 from bridge.node import Bridge
-from bridge.params import BridgeParams
-from bridge.timing import LockstepPacer
-from tests.bridge_helpers import abort_code, sdo_tool  # tests/ helper module
+from tests.bridge_helpers import abort_code, idle_bridge, sdo_tool  # tests/ helper module
 from virtual_bus.formats.axis import load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
@@ -53,12 +51,8 @@ def all_variables(od: canopen.ObjectDictionary) -> list[ODVariable]:
 
 @pytest.fixture
 def bridge(bus_pair: tuple[can.BusABC, can.BusABC]) -> Iterator[Bridge]:
-    b = Bridge(bus_pair[0], BridgeParams.for_axis(AXIS), AXIS.kind, LockstepPacer(0.001))
-    b.start(configure_drive=False)  # no drive on this bus: ENABLING
-    b.controller.command(Command.DISABLE)
-    with b.serving():
+    with idle_bridge(bus_pair[0]) as b:  # no drive on this bus
         yield b
-    b.close()
 
 
 @pytest.fixture
@@ -188,7 +182,8 @@ REFUSED = [
     ("n breaks the sampling rule", objdict.WINDOW_N, 0, bytes([20]), SdoAbort.TOO_HIGH),
     ("T_v below eq. 14", objdict.TV, 0, F.pack(0.5), SdoAbort.TOO_LOW),
     ("T_f negative", objdict.TF, 0, F.pack(-1.0), SdoAbort.TOO_LOW),
-    ("beta_T inf", objdict.BETA_T, 0, F.pack(math.inf), SdoAbort.VALUE_RANGE),
+    # +inf is above the EDS HighLimit (1e4), as a tool reading the EDS predicts
+    ("beta_T inf", objdict.BETA_T, 0, F.pack(math.inf), SdoAbort.TOO_HIGH),
     ("enable = 2", objdict.REG_ENABLE, 0, b"\x02", SdoAbort.VALUE_RANGE),
     ("cycle 50 us", objdict.CYCLE_PERIOD, 0, struct.pack("<I", 50), SdoAbort.TOO_LOW),
     ("cycle 5 ms", objdict.CYCLE_PERIOD, 0, struct.pack("<I", 5000), SdoAbort.TOO_HIGH),
@@ -197,7 +192,7 @@ REFUSED = [
         objdict.HEARTBEAT_CONSUMER,
         1,
         struct.pack("<I", (5 << 16) | 100),
-        SdoAbort.VALUE_RANGE,
+        SdoAbort.TOO_HIGH,  # above the EDS HighLimit 0x0002FFFF (drive node-ID 2)
     ),
     ("speed limit 0", objdict.SPEED_LIMIT, 0, F.pack(0.0), SdoAbort.TOO_LOW),
     (

@@ -109,7 +109,8 @@ def test_probe_command_against_a_localnode_writes_the_profile(
     text = capsys.readouterr().out
     assert code == 0
     assert "6502h drive modes     0x001F0065" in text
-    assert "start-up would stop: drive 2: 608Fh" in text  # says what to configure
+    assert "start-up would stop: 3 problem(s), all of them:" in text
+    assert "1. drive 2: 608Fh position encoder resolution not readable" in text
     probed = load_profile(out)
     shipped = load_profile(DRIVES / "technosoft_ipos.toml")
     assert probed.mappable == shipped.mappable and probed.vendor_id == 0x1A3

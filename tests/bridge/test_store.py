@@ -6,7 +6,6 @@ defaults back at the next start; a store file the bridge would refuse stops the 
 
 from __future__ import annotations
 
-import contextlib
 import json
 import struct
 from collections.abc import Iterator
@@ -16,34 +15,18 @@ import can
 import canopen
 import pytest
 
-from bridge.cycle import Command
 from bridge.errors import SdoAbort, StoreError
-from bridge.node import Bridge, BridgeConfig
-from bridge.params import BridgeParams
-from bridge.timing import LockstepPacer
-from tests.bridge_helpers import abort_code, sdo_tool  # tests/ helper module
+from bridge.node import BridgeConfig
+from tests.bridge_helpers import (  # tests/ helper module
+    abort_code,
+    idle_bridge,
+    paper_bridge,
+    sdo_tool,
+)
 from virtual_bus.formats.axis import load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
 SAVE, LOAD = 0x65766173, 0x64616F6C
-
-
-@contextlib.contextmanager
-def running_bridge(bus: can.BusABC, store: Path | None) -> Iterator[Bridge]:
-    """A bridge started (no drive), disabled, serving SDO; closed at the end (a "restart"
-    is a second block on the same bus and store file)."""
-    b = Bridge(
-        bus,
-        BridgeParams.for_axis(AXIS),
-        AXIS.kind,
-        LockstepPacer(0.001),
-        config=BridgeConfig(store_path=store),
-    )
-    b.start(configure_drive=False)
-    b.controller.command(Command.DISABLE)
-    with b.serving():
-        yield b
-    b.close()
 
 
 @pytest.fixture
@@ -57,7 +40,7 @@ def test_store_restart_and_read_back(
 ) -> None:
     store = tmp_path / "axis.bridge-store.json"
     sdo = tool.sdo
-    with running_bridge(bus_pair[0], store):
+    with idle_bridge(bus_pair[0], store):
         assert sdo[0x1010][1].raw == 1  # saves on command (CiA 301 bit 0)
         assert sdo[0x1011][1].raw == 1
         sdo["Position gain kv"].raw = 30.0
@@ -68,7 +51,7 @@ def test_store_restart_and_read_back(
         sdo[0x1010][1].raw = SAVE
         assert store.is_file()
         assert [p.name for p in tmp_path.iterdir()] == [store.name]  # no temporary left
-    with running_bridge(bus_pair[0], store) as restarted:
+    with idle_bridge(bus_pair[0], store) as restarted:
         assert sdo["Position gain kv"].raw == 30.0
         assert sdo[0x2014][2].raw == pytest.approx(0.25)
         assert sdo[0x1016][1].raw == (2 << 16) | 400
@@ -81,7 +64,7 @@ def test_store_restart_and_read_back(
         sdo[0x1011][1].raw = LOAD
         assert sdo["Position gain kv"].raw == 30.0
         assert not store.exists()
-    with running_bridge(bus_pair[0], store):
+    with idle_bridge(bus_pair[0], store):
         assert sdo["Position gain kv"].raw == 25.0
         assert sdo[0x2014][2].raw == 2.0
         assert sdo["Regulator enable"].raw is True
@@ -101,7 +84,7 @@ def test_wrong_signature_is_refused_and_changes_nothing(
     value: int,
 ) -> None:
     store = tmp_path / "store.json"
-    with running_bridge(bus_pair[0], store):
+    with idle_bridge(bus_pair[0], store):
         tool.sdo["Position gain kv"].raw = 30.0
         tool.sdo[0x1010][1].raw = SAVE
         before = store.read_bytes()
@@ -114,7 +97,7 @@ def test_wrong_signature_is_refused_and_changes_nothing(
 def test_without_a_store_file_the_bridge_says_so(
     bus_pair: tuple[can.BusABC, can.BusABC], tool: canopen.RemoteNode
 ) -> None:
-    with running_bridge(bus_pair[0], None):
+    with idle_bridge(bus_pair[0], None):
         assert tool.sdo[0x1010][1].raw == 0  # does not save on command
         code = abort_code(lambda: tool.sdo.download(0x1010, 1, struct.pack("<I", SAVE)))
         assert code == SdoAbort.NOT_STORED
@@ -124,7 +107,7 @@ def test_unwritable_store_directory_is_a_hardware_abort(
     bus_pair: tuple[can.BusABC, can.BusABC], tool: canopen.RemoteNode, tmp_path: Path
 ) -> None:
     store = tmp_path / "missing-dir" / "store.json"
-    with running_bridge(bus_pair[0], store):
+    with idle_bridge(bus_pair[0], store):
         code = abort_code(lambda: tool.sdo.download(0x1010, 1, struct.pack("<I", SAVE)))
         assert code == SdoAbort.HARDWARE == 0x0606_0000
 
@@ -153,13 +136,7 @@ def test_malformed_store_file_stops_the_start(
     path = tmp_path / "store.json"
     path.write_text(content)
     with pytest.raises(StoreError, match=fragment):
-        Bridge(
-            bus_pair[0],
-            BridgeParams.for_axis(AXIS),
-            AXIS.kind,
-            LockstepPacer(0.001),
-            config=BridgeConfig(store_path=path),
-        )
+        paper_bridge(bus_pair[0], BridgeConfig(store_path=path))
 
 
 @pytest.mark.parametrize(
@@ -185,10 +162,4 @@ def test_store_file_with_refused_values_stops_the_start(
 ) -> None:
     path = _stored(tmp_path, objects)
     with pytest.raises(StoreError, match=fragment):
-        Bridge(
-            bus_pair[0],
-            BridgeParams.for_axis(AXIS),
-            AXIS.kind,
-            LockstepPacer(0.001),
-            config=BridgeConfig(store_path=path),
-        )
+        paper_bridge(bus_pair[0], BridgeConfig(store_path=path))

@@ -11,8 +11,8 @@ import pytest
 from bridge.errors import BridgeConfigError, DriveSetupError, DriveTimeoutError
 from bridge.master import DriveSetup
 from bridge.node import Bridge, BridgeConfig
-from bridge.params import BridgeParams
 from bridge.timing import LockstepPacer, RealTimePacer, TimeMode
+from tests.bridge_helpers import paper_bridge
 from virtual_bus.formats.axis import load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
@@ -93,7 +93,7 @@ def other_device(bus_pair: tuple[can.BusABC, can.BusABC]) -> Iterator[canopen.Lo
 def _bridge(bus: can.BusABC, drive_id: int = 2) -> Bridge:
     setup = DriveSetup(sdo_timeout_s=0.05, sdo_retries=1)
     config = BridgeConfig(drive_id=drive_id, drive_setup=setup)
-    return Bridge(bus, BridgeParams.for_axis(AXIS), AXIS.kind, LockstepPacer(0.001), config=config)
+    return paper_bridge(bus, config)
 
 
 def test_start_up_names_the_object_the_device_refuses(

@@ -17,6 +17,7 @@ from hil.__main__ import main as hil_main
 from plant_sim.__main__ import main as plant_sim_main
 from plant_sim.drive.process import DriveProcessConfig, serve
 from plant_sim.errors import PlantSimError
+from tests.command_line import exit_status
 from tests.paths import ROOT
 from virtual_bus.formats import FormatError
 from virtual_bus.formats.axis import load_axis
@@ -53,10 +54,7 @@ def axis_file(request: pytest.FixtureRequest, tmp_path: Path) -> Path:
 
 
 def _call(main: object, argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
-    try:
-        code = main(argv)  # type: ignore[operator]
-    except SystemExit as exc:
-        code = int(exc.code or 0)
+    code = exit_status(main, argv)  # type: ignore[arg-type]
     err = capsys.readouterr().err
     assert "Traceback" not in err, err
     if code == 2:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from hil.__main__ import main
+from tests.command_line import refused_in_one_line
 from virtual_bus import Interface
 from virtual_bus.contract import SYNC_COB_ID
 from virtual_bus.formats.trace import read_trace
@@ -37,14 +38,7 @@ def test_help(command: list[str], capsys: pytest.CaptureFixture[str]) -> None:
 def test_bad_arguments_exit_2_with_one_line(
     argv: list[str], fragment: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    try:
-        code = main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    assert code == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err
-    assert fragment in err
+    assert fragment in refused_in_one_line(main, argv, capsys)
 
 
 @pytest.mark.slow

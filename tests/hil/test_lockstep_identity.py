@@ -24,10 +24,10 @@ from bridge.interpolator import Table
 from bridge.layout import SYNC_COB_ID, TPDO2_STRUCT
 from bridge.params import BridgeParams
 from bridge.scaling import MOTOR_INCREMENTS_PER_RAD, Scaling
-from hil.harness import play_references, simulated_axis
+from hil.harness import play_references
 from plant_sim.drive import DriveConfig
-from tests.bridge.test_loop import LIMIT_CYCLE_AXIS, SHORT_X, params
-from tests.bridge_helpers import PayloadDrive, disturbance_in_mnm  # tests/ helper module
+from tests.bridge.test_loop import limit_cycle_over_bus, params
+from tests.bridge_helpers import LIMIT_CYCLE_AXIS, PayloadDrive  # tests/ helper module
 from virtual_bus import Interface
 from virtual_bus.formats.trace import read_trace
 
@@ -104,17 +104,13 @@ def logged_cycle_frames(path: Path) -> list[tuple[int, bytes]]:
 def test_lockstep_frames_and_trace_are_those_of_the_stepped_loop(
     bus_mode: Interface, enabled: bool, tmp_path: Path
 ) -> None:
-    refs = SHORT_X.references(LIMIT_CYCLE_AXIS)
-    refs = disturbance_in_mnm(refs)  # the drive holds 2100h in whole mN·m
-    with simulated_axis(
-        LIMIT_CYCLE_AXIS,
-        params(LIMIT_CYCLE_AXIS, enabled),
-        interface=bus_mode,
+    with limit_cycle_over_bus(
+        enabled,
+        bus_mode,
         trace_path=tmp_path / "trace.csv",
         keep_trace=False,
-        disturbance=refs.disturbance_nm,
         bus_log_path=tmp_path / "bus.log",
-    ) as sim:
+    ) as (refs, sim):
         run = play_references(sim, refs)
     assert run.state is BridgeState.RUNNING and run.counters.missed == 0
     frames, columns = stepped(enabled, refs)

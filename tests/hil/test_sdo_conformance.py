@@ -24,11 +24,9 @@ from canopen.sdo import SdoAbortedError, SdoClient
 import tests.sdo_oracle as oracle  # tests/ helper module
 from bridge import od as objdict
 from bridge.cycle import Command
-from bridge.node import Bridge
-from bridge.params import BridgeParams
-from bridge.timing import LockstepPacer
 from plant_sim.drive.od import DEFAULT_EDS_PATH as DRIVE_EDS
 from plant_sim.drive.rig import virtual_rig
+from tests.bridge_helpers import paper_bridge
 from virtual_bus.formats.axis import load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
@@ -69,7 +67,7 @@ def bridge_server() -> Iterator[tuple]:
     tool_bus = can.Bus(interface="virtual", channel=channel)
     network = canopen.Network(tool_bus)
     network.notifier = can.Notifier(tool_bus, network.listeners, 0.02)
-    b = Bridge(bridge_bus, BridgeParams.for_axis(AXIS), AXIS.kind, LockstepPacer(0.001))
+    b = paper_bridge(bridge_bus)
     try:
         b.start(configure_drive=False)
         b.controller.command(Command.DISABLE)

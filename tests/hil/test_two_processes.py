@@ -7,7 +7,6 @@ python-can's ``can.LogReader`` and, where installed, converted by can-utils' ``l
 
 from __future__ import annotations
 
-import selectors
 import shutil
 import signal
 import subprocess
@@ -24,6 +23,7 @@ import pytest
 
 from bridge.__main__ import main as bridge_main
 from plant_sim.drive.process import DriveProcessConfig, serve
+from tests.command_line import next_line
 from tests.paths import ROOT
 from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.formats.axis import load_axis
@@ -158,16 +158,6 @@ def test_bus_log_converts_with_can_utils(served: BusConfig, tmp_path: Path) -> N
 
 
 # --- two processes: udp_multicast in a private network namespace -----------------------------
-def _readline(proc: subprocess.Popen[str], timeout_s: float) -> str:
-    """The next stdout line of ``proc`` within ``timeout_s`` ("" if none)."""
-    assert proc.stdout is not None
-    with selectors.DefaultSelector() as sel:
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        if not sel.select(timeout_s):
-            return ""
-    return proc.stdout.readline()
-
-
 READER = """
 import json, sys
 from tests.hil.test_two_processes import read_drive
@@ -200,7 +190,7 @@ def test_drive_and_bridge_as_two_processes_over_udp(
         env=subprocess_env,
     )
     try:
-        line = _readline(drive, BOOT_TIMEOUT_S)
+        line = next_line(drive, BOOT_TIMEOUT_S)
         assert line.startswith("drive 2: boot-up sent on udp_multicast group"), line
         started = time.time()
         argv = _bridge_argv("udp_multicast", UDP_GROUP, log, trace)

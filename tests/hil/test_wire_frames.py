@@ -22,9 +22,9 @@ from bridge.cycle import BridgeState, Command, StopReason
 from bridge.layout import TPDO1_STRUCT, TPDO2_STRUCT
 from bridge.node import Bridge
 from bridge.params import BridgeParams
-from bridge.timing import LockstepPacer
 from hil.harness import simulated_axis
 from plant_sim.drive.rig import virtual_rig
+from tests.bridge_helpers import paper_bridge
 from virtual_bus import FaultConfig
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.frame_guard import FrameFault
@@ -44,7 +44,7 @@ def bridge_count(b: Bridge, fault: FrameFault) -> int:
 @pytest.fixture
 def bridge() -> Iterator[Bridge]:
     bus = can.Bus(interface="virtual", channel=f"frames-{uuid.uuid4().hex[:12]}")
-    b = Bridge(bus, BridgeParams.for_axis(AXIS), AXIS.kind, LockstepPacer(0.001))
+    b = paper_bridge(bus)
     try:
         b.start(configure_drive=False)
         yield b

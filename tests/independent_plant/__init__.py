@@ -28,6 +28,12 @@ matrix. Trace files are written with :class:`virtual_bus.formats.trace.Trace` (t
 only).
 """
 
-from tests.independent_plant.plant import COLUMNS, PlantOptions, parameters, simulate
+from tests.independent_plant.plant import (
+    COLUMNS,
+    PlantOptions,
+    SteppedPlant,
+    parameters,
+    simulate,
+)
 
-__all__ = ["COLUMNS", "PlantOptions", "parameters", "simulate"]
+__all__ = ["COLUMNS", "PlantOptions", "SteppedPlant", "parameters", "simulate"]

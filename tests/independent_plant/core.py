@@ -182,6 +182,161 @@ def _past(buf: np.ndarray, newest: int, filled: int, back: float) -> float:
     return a + (b - a) * frac
 
 
+#: scalar state of :func:`run`'s loop, kept between calls of :func:`advance`
+(
+    S_NEWEST,
+    S_FILLED,
+    S_RING_I,
+    S_TH_PREV,
+    S_W_MEAS,
+    S_INTEG,
+    S_C_INT,
+    S_I_REF,
+    S_T,
+    N_S,
+) = range(10)
+
+
+@_jit
+def init(
+    q: np.ndarray,
+    x0: float,
+    s: np.ndarray,
+    y: np.ndarray,
+    hist_x: np.ndarray,
+    hist_th: np.ndarray,
+    hist_w: np.ndarray,
+    ring: np.ndarray,
+) -> None:
+    """At rest at load position ``x0``: the state of :func:`run` before its first cycle."""
+    kr = q[Q_KR]
+    y[:] = 0.0
+    y[0] = kr * x0
+    y[2] = x0
+    hist_x[:] = x0
+    hist_th[:] = kr * x0
+    hist_w[:] = 0.0
+    ring[:] = 0.0
+    s[:] = 0.0
+    s[S_FILLED] = 1.0
+    s[S_TH_PREV] = _quantise(y[0], q[Q_MOTOR_QUANTUM])
+
+
+@_jit
+def sense(
+    q: np.ndarray,
+    s: np.ndarray,
+    y: np.ndarray,
+    hist_x: np.ndarray,
+    hist_th: np.ndarray,
+    hist_w: np.ndarray,
+    reading: np.ndarray,
+) -> None:
+    """The sensors at the position-cycle instant: reading = (theta, omega, x, torque)."""
+    tcc = q[Q_TSC] / int(q[Q_NCC])
+    back = abs(q[Q_OFFSET]) / tcc
+    newest = int(s[S_NEWEST])
+    filled = int(s[S_FILLED])
+    x_true = y[2]
+    th_true = y[0]
+    w_read = s[S_W_MEAS]
+    if q[Q_OFFSET] > 0.0:
+        x_true = _past(hist_x, newest, filled, back)
+    elif q[Q_OFFSET] < 0.0:
+        th_true = _past(hist_th, newest, filled, back)
+        w_read = _past(hist_w, newest, filled, back)
+    reading[0] = _quantise(th_true, q[Q_MOTOR_QUANTUM])
+    reading[1] = w_read
+    reading[2] = _quantise(x_true, q[Q_LOAD_QUANTUM])
+    reading[3] = y[4] if q[Q_IDEAL_CURRENT] == 0.0 else s[S_I_REF]
+
+
+@_jit
+def advance(
+    q: np.ndarray,
+    s: np.ndarray,
+    y: np.ndarray,
+    hist_x: np.ndarray,
+    hist_th: np.ndarray,
+    hist_w: np.ndarray,
+    ring: np.ndarray,
+    w_set: float,
+    tau_ff: float,
+    f_ext: float,
+) -> None:
+    """One position cycle at the speed set point ``w_set`` (rad/s), torque feed-forward
+    ``tau_ff`` (N m) and external load force ``f_ext`` (N)."""
+    kr = q[Q_KR]
+    k1 = np.zeros(5)
+    k2 = np.zeros(5)
+    k3 = np.zeros(5)
+    k4 = np.zeros(5)
+    tmp = np.zeros(5)
+    nsc = int(q[Q_NSC])
+    ncc = int(q[Q_NCC])
+    nrk = int(q[Q_NRK])
+    tsc = q[Q_TSC]
+    tcc = tsc / ncc
+    h = tcc / nrk
+    n_delay = int(q[Q_DELAY_N])
+    filt = 1.0 - math.exp(-tsc / q[Q_SPEED_FILTER]) if q[Q_SPEED_FILTER] > 0.0 else 1.0
+    lim = q[Q_TLIM]
+    th_prev = s[S_TH_PREV]
+    w_meas = s[S_W_MEAS]
+    integ = s[S_INTEG]
+    c_int = s[S_C_INT]
+    i_ref = s[S_I_REF]
+    t = s[S_T]
+    newest = int(s[S_NEWEST])
+    filled = int(s[S_FILLED])
+    ring_i = int(s[S_RING_I])
+    for _ in range(nsc):
+        # --- speed controller: quantised encoder, backward difference, filter ---------
+        th_q = _quantise(y[0], q[Q_MOTOR_QUANTUM])
+        w_raw = (th_q - th_prev) / tsc
+        th_prev = th_q
+        w_meas += filt * (w_raw - w_meas)
+        err = w_set - w_meas
+        prop = q[Q_KSP] * err + tau_ff
+        u = prop + integ
+        # conditional integration: freeze the integral while it would deepen saturation
+        if q[Q_KI] != 0.0:
+            if not ((u >= lim and err > 0.0) or (u <= -lim and err < 0.0)):
+                integ += q[Q_KI] * err * tsc
+            u = prop + integ
+        u = min(lim, max(-lim, u))
+        for _c in range(ncc):
+            # --- dead time on the torque set point, then the PI current loop -----------
+            ring[ring_i] = u
+            i_ref = ring[(ring_i - n_delay) % DELAY_RING] if n_delay > 0 else u
+            ring_i = (ring_i + 1) % DELAY_RING
+            volt = 0.0
+            if q[Q_IDEAL_CURRENT] == 0.0:
+                e_c = i_ref - y[4]
+                c_int += q[Q_CKI] * e_c * tcc
+                volt = q[Q_CKP] * e_c + c_int
+            for _r in range(nrk):
+                _rk4(q, y, h, volt, i_ref, f_ext, k1, k2, k3, k4, tmp)
+                if q[Q_RIGID] != 0.0:
+                    y[0] = kr * y[2]
+                    y[1] = kr * y[3]
+            t += tcc
+            newest = (newest + 1) % HISTORY
+            filled = min(filled + 1, HISTORY)
+            hist_x[newest] = y[2]
+            hist_th[newest] = y[0]
+            hist_w[newest] = w_meas
+    s[S_TH_PREV] = th_prev
+    s[S_W_MEAS] = w_meas
+    s[S_INTEG] = integ
+    s[S_C_INT] = c_int
+    s[S_I_REF] = i_ref
+    s[S_T] = t
+    s[S_NEWEST] = newest
+    s[S_FILLED] = filled
+    s[S_RING_I] = ring_i
+
+
 @_jit
 def run(
     q: np.ndarray,
@@ -194,50 +349,19 @@ def run(
     """Closed loop, one output row per position cycle sampled at its start:
     (t, x_ref, ω_set, θ reading, ω reading, x reading, torque, disturbance)."""
     kr = q[Q_KR]
+    s = np.zeros(N_S)
     y = np.zeros(5)
-    y[0] = kr * x0
-    y[2] = x0
-    k1 = np.zeros(5)
-    k2 = np.zeros(5)
-    k3 = np.zeros(5)
-    k4 = np.zeros(5)
-    tmp = np.zeros(5)
-    hist_x = np.full(HISTORY, x0)
-    hist_th = np.full(HISTORY, kr * x0)
+    hist_x = np.zeros(HISTORY)
+    hist_th = np.zeros(HISTORY)
     hist_w = np.zeros(HISTORY)
-    newest = 0
-    filled = 1
     ring = np.zeros(DELAY_RING)
-    ring_i = 0
-    nsc = int(q[Q_NSC])
-    ncc = int(q[Q_NCC])
-    nrk = int(q[Q_NRK])
-    tsc = q[Q_TSC]
-    tcc = tsc / ncc
-    h = tcc / nrk
-    n_delay = int(q[Q_DELAY_N])
-    back = abs(q[Q_OFFSET]) / tcc
-    filt = 1.0 - math.exp(-tsc / q[Q_SPEED_FILTER]) if q[Q_SPEED_FILTER] > 0.0 else 1.0
-    lim = q[Q_TLIM]
-    th_prev = _quantise(y[0], q[Q_MOTOR_QUANTUM])
-    w_meas = 0.0
-    integ = 0.0
-    c_int = 0.0
-    i_ref = 0.0
-    t = 0.0
+    reading = np.zeros(4)
+    init(q, x0, s, y, hist_x, hist_th, hist_w, ring)
     v_prev = v_ref[0]
     for k in range(x_ref.shape[0]):
-        # --- sensors at the position-cycle instant ---------------------------------------
-        x_true = y[2]
-        th_true = y[0]
-        w_read = w_meas
-        if q[Q_OFFSET] > 0.0:
-            x_true = _past(hist_x, newest, filled, back)
-        elif q[Q_OFFSET] < 0.0:
-            th_true = _past(hist_th, newest, filled, back)
-            w_read = _past(hist_w, newest, filled, back)
-        x_read = _quantise(x_true, q[Q_LOAD_QUANTUM])
-        th_read = _quantise(th_true, q[Q_MOTOR_QUANTUM])
+        sense(q, s, y, hist_x, hist_th, hist_w, reading)
+        th_read = reading[0]
+        x_read = reading[2]
         # --- position controller with feed-forward --------------------------------------
         fb = x_read if q[Q_FB_LOAD] != 0.0 else th_read / kr
         w_set = kr * (q[Q_KV] * (x_ref[k] - fb) + q[Q_KVFF] * v_ref[k])
@@ -248,43 +372,8 @@ def run(
         out[k, 1] = x_ref[k]
         out[k, 2] = w_set
         out[k, 3] = th_read
-        out[k, 4] = w_read
+        out[k, 4] = reading[1]
         out[k, 5] = x_read
-        out[k, 6] = y[4] if q[Q_IDEAL_CURRENT] == 0.0 else i_ref
+        out[k, 6] = reading[3]
         out[k, 7] = dist_nm[k]
-        for _ in range(nsc):
-            # --- speed controller: quantised encoder, backward difference, filter ---------
-            th_q = _quantise(y[0], q[Q_MOTOR_QUANTUM])
-            w_raw = (th_q - th_prev) / tsc
-            th_prev = th_q
-            w_meas += filt * (w_raw - w_meas)
-            err = w_set - w_meas
-            prop = q[Q_KSP] * err + tau_ff
-            u = prop + integ
-            # conditional integration: freeze the integral while it would deepen saturation
-            if q[Q_KI] != 0.0:
-                if not ((u >= lim and err > 0.0) or (u <= -lim and err < 0.0)):
-                    integ += q[Q_KI] * err * tsc
-                u = prop + integ
-            u = min(lim, max(-lim, u))
-            for _c in range(ncc):
-                # --- dead time on the torque set point, then the PI current loop -----------
-                ring[ring_i] = u
-                i_ref = ring[(ring_i - n_delay) % DELAY_RING] if n_delay > 0 else u
-                ring_i = (ring_i + 1) % DELAY_RING
-                volt = 0.0
-                if q[Q_IDEAL_CURRENT] == 0.0:
-                    e_c = i_ref - y[4]
-                    c_int += q[Q_CKI] * e_c * tcc
-                    volt = q[Q_CKP] * e_c + c_int
-                for _r in range(nrk):
-                    _rk4(q, y, h, volt, i_ref, f_ext, k1, k2, k3, k4, tmp)
-                    if q[Q_RIGID] != 0.0:
-                        y[0] = kr * y[2]
-                        y[1] = kr * y[3]
-                t += tcc
-                newest = (newest + 1) % HISTORY
-                filled = min(filled + 1, HISTORY)
-                hist_x[newest] = y[2]
-                hist_th[newest] = y[0]
-                hist_w[newest] = w_meas
+        advance(q, s, y, hist_x, hist_th, hist_w, ring, w_set, tau_ff, f_ext)

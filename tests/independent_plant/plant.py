@@ -167,3 +167,58 @@ def simulate(
     out = np.empty((len(position), len(COLUMNS)))
     C.run(q, float(position[0]), position, speed, dist, out)
     return Trace({name: out[:, i] for i, name in enumerate(COLUMNS)})
+
+
+class SteppedPlant:
+    """This plant as a drive sees it: the speed set point in, one position cycle per call,
+    the sensors out (the position loop is the caller's -- the bridge's controller and the
+    paper's regulator, or a frequency-response excitation). Same physics and sensors as
+    :func:`simulate` (which runs the same :func:`core.advance`)."""
+
+    def __init__(
+        self, axis: AxisConfig, options: PlantOptions = PlantOptions(), position: float = 0.0
+    ) -> None:
+        self.axis = axis
+        self._q = parameters(axis, options)
+        self._s = np.zeros(C.N_S)
+        self._y = np.zeros(5)
+        self._hist = (np.zeros(C.HISTORY), np.zeros(C.HISTORY), np.zeros(C.HISTORY))
+        self._ring = np.zeros(C.DELAY_RING)
+        self._reading = np.zeros(4)
+        C.init(self._q, float(position), self._s, self._y, *self._hist, self._ring)
+        self._sense()
+
+    def _sense(self) -> None:
+        C.sense(self._q, self._s, self._y, *self._hist, self._reading)
+
+    def advance(self, speed_setpoint_rad_s: float, disturbance_nm: float = 0.0) -> None:
+        """One position cycle at a constant speed set point (rad/s at the motor) and an
+        external load torque (N m at the motor, positive pushes towards +x)."""
+        kr = self._q[C.Q_KR]
+        C.advance(
+            self._q,
+            self._s,
+            self._y,
+            *self._hist,
+            self._ring,
+            float(speed_setpoint_rad_s),
+            0.0,
+            kr * float(disturbance_nm),
+        )
+        self._sense()
+
+    @property
+    def motor_position_rad(self) -> float:
+        return float(self._reading[0])
+
+    @property
+    def motor_speed_rad_s(self) -> float:
+        return float(self._reading[1])
+
+    @property
+    def load_position(self) -> float:
+        return float(self._reading[2])
+
+    @property
+    def motor_torque_nm(self) -> float:
+        return float(self._reading[3])

@@ -11,6 +11,7 @@ from plant_sim.__main__ import main
 from plant_sim.diagnosis.synthetic import slide_axis
 from plant_sim.physics.model import KernelOptions
 from plant_sim.physics.simulate import References, simulate
+from tests.command_line import refused_in_one_line
 from virtual_bus.formats.axis import AxisConfig, dump_axis
 from virtual_bus.formats.trace import Trace, read_trace
 
@@ -119,11 +120,6 @@ def test_bad_input_exit_2(
     elif mutate == "bad_dir":
         out = tmp_path / "missing" / "sim.csv"
     Trace(cols).to_csv(like)
-    try:
-        code = main(["simulate", "--axis", str(toml), "--like", str(like), "--out", str(out)])
-    except SystemExit as exc:  # refused by the argument parser
-        code = exc.code
-    assert code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and needle in err[0], err
+    argv = ["simulate", "--axis", str(toml), "--like", str(like), "--out", str(out)]
+    assert needle in refused_in_one_line(main, argv, capsys)
     assert not out.exists()

@@ -25,7 +25,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from .errors import AxisFileError
+from .errors import AxisFileError, read_text
 
 
 class AxisKind(Enum):
@@ -248,10 +248,11 @@ class AxisConfig:
 
     def __post_init__(self) -> None:
         _check_range("axis.transmission_ratio", self.transmission_ratio, low=0.0, low_open=True)
-        try:  # k_r² in J_l' = J_l / k_r² (section III) must stay a finite float
-            reflected = self.mechanics.load_mass / self.transmission_ratio**2
+        try:  # k_r² in J_l' = J_l / k_r² (section III) must be a finite float > 0
+            square = self.transmission_ratio**2
         except OverflowError:
-            reflected = 0.0
+            square = math.inf
+        reflected = self.mechanics.load_mass / square if 0.0 < square < math.inf else 0.0
         if not (math.isfinite(reflected) and reflected > 0.0):
             raise AxisFileError(
                 f"axis.transmission_ratio = {self.transmission_ratio!r}: the reflected load "
@@ -435,12 +436,9 @@ def axis_from_mapping(doc: Mapping[str, Any]) -> AxisConfig:
 def load_axis(path: str | Path) -> AxisConfig:
     """Read and validate an axis file. Raises AxisFileError naming the file and the key."""
     path = Path(path)
+    text = read_text(path, "axis file", AxisFileError)
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError as exc:
-        raise AxisFileError(f"{path}: no such axis file") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise AxisFileError(f"{path}: cannot read axis file ({exc})") from exc
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise AxisFileError(f"{path}: not valid TOML ({exc})") from exc
     try:

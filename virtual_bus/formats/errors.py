@@ -1,7 +1,9 @@
 """Exceptions of the file formats the whole project shares: one root, each subclass also
-the matching builtin."""
+the matching builtin; and :func:`read_text`, how every format reads a file's text."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 
 class FormatError(Exception):
@@ -31,3 +33,20 @@ class TraceFileError(FormatError, ValueError):
 
 class TraceWarning(UserWarning):
     """A trace column looks implausible for its unit (never rescaled silently)."""
+
+
+def read_text(path: Path, what: str, error: type[FormatError]) -> str:
+    """The text of the file ``path`` holding ``what`` ("axis file"): UTF-8, a byte-order mark
+    (an editor's or a spreadsheet's export) dropped; ``error`` in one line naming the file
+    when it is missing, unreadable or not UTF-8."""
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise error(f"{path}: no such {what}") from None
+    except UnicodeDecodeError as exc:
+        raise error(
+            f"{path}: byte {exc.start} (0x{exc.object[exc.start]:02X}) is not UTF-8; "
+            f"{what}s are UTF-8 text"
+        ) from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None

@@ -9,6 +9,7 @@ row by row and flushes regularly so a killed recorder leaves a readable file.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import warnings
 from collections.abc import Iterable, Mapping, Sequence
@@ -18,7 +19,8 @@ from typing import BinaryIO
 
 import numpy as np
 
-from .errors import TraceFileError, TraceWarning
+from ..closing import Closing
+from .errors import TraceFileError, TraceWarning, read_text
 
 REQUIRED_COLUMNS = ("time", "motor_position", "motor_torque")
 MIN_ROWS = 100
@@ -104,7 +106,7 @@ class Trace:
             writer.write_rows(np.column_stack([self.columns[c] for c in self.names]))
 
 
-class TraceWriter:
+class TraceWriter(Closing):
     """Row-wise CSV writer: rows are collected and every ``flush_every`` rows (and on close)
     written as one block in a single unbuffered write, so the file only ever holds whole rows
     and a recorder killed mid-run leaves a trace that reads back up to its last block."""
@@ -141,12 +143,6 @@ class TraceWriter:
         if not self._file.closed:
             self.flush()
             self._file.close()
-
-    def __enter__(self) -> TraceWriter:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def _plausibility(trace: Trace, path: Path) -> None:
@@ -194,19 +190,23 @@ def check_header(header: Sequence[str], required: Sequence[str], source: str) ->
             )
 
 
-def check_values(name: str, values: np.ndarray, first_line: int, source: str) -> None:
+def check_values(
+    name: str, values: np.ndarray, first_line: int, source: str, *, missing: bool = False
+) -> None:
     """Refuse NaN/inf and magnitudes beyond :data:`MAX_MAGNITUDE` in column ``name``;
-    ``first_line`` is the file line of ``values[0]`` (the header is line 1)."""
-    bad = ~np.isfinite(values)
-    if bad.any():
-        line = first_line + int(np.argmax(bad))
+    ``first_line`` is the file line of ``values[0]`` (the header is line 1). ``missing``:
+    NaN/inf are samples without that measurement (the fleet monitor's optional columns,
+    docs/trace-file.md), only the magnitude of the others is checked."""
+    finite = np.isfinite(values)
+    if not missing and not finite.all():
+        line = first_line + int(np.argmax(~finite))
         raise TraceFileError(
             f"{source}: line {line}, column {name!r}: {float(values[line - first_line])} "
             "(empty, NaN or inf not allowed)",
             column=name,
             row=line,
         )
-    huge = np.abs(values) > MAX_MAGNITUDE
+    huge = finite & (np.abs(values) > MAX_MAGNITUDE)
     if huge.any():
         line = first_line + int(np.argmax(huge))
         raise TraceFileError(
@@ -257,14 +257,11 @@ def sample_time_problem(time: np.ndarray, source: str) -> str | None:
 def read_trace(path: str | Path, required: Sequence[str] = REQUIRED_COLUMNS) -> Trace:
     """Read and check a trace file; raises TraceFileError naming the column or row."""
     path = Path(path)
+    text = read_text(path, "trace file", TraceFileError)
     try:
-        # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the first name
-        with open(path, newline="", encoding="utf-8-sig") as fh:
-            rows = list(csv.reader(fh))
-    except FileNotFoundError as exc:
-        raise TraceFileError(f"{path}: no such trace file") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TraceFileError(f"{path}: cannot read ({exc})") from exc
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as exc:
+        raise TraceFileError(f"{path}: not a CSV file ({exc})") from None
     if not rows:
         raise TraceFileError(f"{path}: empty file, expected a header row")
     header = [h.strip() for h in rows[0]]

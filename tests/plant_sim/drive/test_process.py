@@ -21,6 +21,7 @@ from plant_sim.drive import State402
 from plant_sim.drive.errors import DriveConfigError
 from plant_sim.drive.node import NmtState
 from plant_sim.drive.process import DriveProcessConfig, ServeResult, SyncWatch, serve
+from tests.command_line import refused_in_one_line
 from tests.paths import ROOT
 from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.formats.axis import load_axis
@@ -34,14 +35,7 @@ BOOT_TIMEOUT_S = 120.0  # a drive started on an empty numba cache compiles first
 
 
 def _one_line_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
-    try:
-        code = plant_sim_main(argv)
-    except SystemExit as exc:
-        code = exc.code
-    assert code == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err, err
-    return err
+    return refused_in_one_line(plant_sim_main, argv, capsys)
 
 
 DRIVE = ["drive", "--axis", str(AXIS_FILE)]

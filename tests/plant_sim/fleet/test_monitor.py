@@ -49,6 +49,18 @@ def _steady_move(n: int, dt: float, speed: float) -> tuple[np.ndarray, np.ndarra
     return t, speed * t
 
 
+def _rigid_recording(path: Path, t: np.ndarray, x_ref: np.ndarray, load: np.ndarray) -> Path:
+    """A trace of the paper axis moving rigidly (motor = k_r · load) with no torque."""
+    cols = {
+        "time": t,
+        "position_reference": x_ref,
+        "motor_position": load * KR,
+        "load_position": load,
+        "motor_torque": np.zeros_like(t),
+    }
+    return _write(path, cols)
+
+
 # --- episodes against an analytic vibration ---------------------------------------------------
 @pytest.mark.parametrize(
     ("freq_hz", "verdict"), [(12.0, Verdict.IN_BAND), (60.0, Verdict.OUTSIDE_BAND)]
@@ -59,14 +71,7 @@ def test_sinusoidal_following_error_is_found_at_its_frequency(tmp_path, freq_hz,
     amp = 20e-6  # m of following error oscillation
     vib = np.where(t > 3.0, amp * np.sin(2 * np.pi * freq_hz * t), 0.0)
     load = x_ref - 0.02 / KV - vib  # steady following error v/kv (eq. 1) plus the vibration
-    cols = {
-        "time": t,
-        "position_reference": x_ref,
-        "motor_position": load * KR,
-        "load_position": load,
-        "motor_torque": np.zeros_like(t),
-    }
-    r = analyse(_source(_write(tmp_path / "v.csv", cols)))
+    r = analyse(_source(_rigid_recording(tmp_path / "v.csv", t, x_ref, load)))
     assert r.ok, r.error
     assert r.verdict is verdict
     (ep,) = r.episodes
@@ -81,14 +86,7 @@ def test_calm_axis_has_no_episode(tmp_path):
     t, x_ref = _steady_move(5000, dt, 0.02)
     rng = np.random.default_rng(0)
     load = x_ref - 0.02 / KV + rng.normal(0, 1e-8, t.size)
-    cols = {
-        "time": t,
-        "position_reference": x_ref,
-        "motor_position": load * KR,
-        "load_position": load,
-        "motor_torque": np.zeros_like(t),
-    }
-    r = analyse(_source(_write(tmp_path / "c.csv", cols)))
+    r = analyse(_source(_rigid_recording(tmp_path / "c.csv", t, x_ref, load)))
     assert r.ok and r.verdict is Verdict.NONE and r.episodes == ()
 
 
@@ -384,26 +382,9 @@ def test_cli_bad_arguments_and_unreachable_scheduler(tmp_path):
     res = _cli(str(tmp_path), "--axes", str(bad_map), "--out", str(tmp_path / "o"))
     assert res.returncode == 2 and "'machine' must be a non-empty string" in res.stderr
     (tmp_path / "only.csv").write_text("not,a\ntrace,file\n")
-    res = _cli(
-        str(tmp_path / "only.csv"),
-        "--axis",
-        str(PAPER_AXIS),
-        "--out",
-        str(tmp_path / "o"),
-        "--workers",
-        "0",
-        "--no-figures",
-    )
+    only = [str(tmp_path / "only.csv"), "--axis", str(PAPER_AXIS), "--out", str(tmp_path / "o")]
+    res = _cli(*only, "--workers", "0", "--no-figures")
     assert res.returncode == 1 and "0 recordings analysed, 1 skipped" in res.stdout
-    res = _cli(
-        str(tmp_path / "only.csv"),
-        "--axis",
-        str(PAPER_AXIS),
-        "--out",
-        str(tmp_path / "o"),
-        "--scheduler",
-        "tcp://127.0.0.1:9",
-        "--no-figures",
-    )
+    res = _cli(*only, "--scheduler", "tcp://127.0.0.1:9", "--no-figures")
     assert res.returncode == 1 and "cannot connect" in res.stderr
     assert res.stderr.strip().count("\n") <= 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -132,16 +133,8 @@ def test_following_error_is_speed_over_kv(paper: AxisConfig, feedback: str, cycl
     from virtual_bus.formats.axis import PositionFeedback
 
     axis = paper.with_values({"control.position_cycle": cycle})
-    axis = AxisConfig(
-        kind=axis.kind,
-        transmission_ratio=axis.transmission_ratio,
-        mechanics=axis.mechanics,
-        friction=axis.friction,
-        disturbance=axis.disturbance,
-        control=type(axis.control)(
-            **{**axis.control.__dict__, "position_feedback": PositionFeedback(feedback)}
-        ),
-    )
+    control = dataclasses.replace(axis.control, position_feedback=PositionFeedback(feedback))
+    axis = dataclasses.replace(axis, control=control)
     feed = 0.05
     trace = simulate(axis, _constant_speed_refs(axis, feed, 2.0))
     x_fb = (

@@ -1,0 +1,133 @@
+"""The bridge's own NMT slave: its NMT state, the heartbeat it produces (1017h) and what the
+state allows (CiA 301 7.3.2, table 46: no SDO in Stopped).
+
+The bridge is the NMT master of its drive; as every CANopen device it is an NMT slave too, so
+a tool's NMT commands reach it. canopen's ``NmtSlave`` (which ``LocalNode`` brings) keeps the
+state but stays in Initialising after a reset command, sends its heartbeat from a python-can
+thread that bypasses the bridge's bus log, and lets the SDO server answer in Stopped. This
+replaces it:
+
+- the state starts Operational (the bridge starts its network as NMT master and produces
+  SYNC from the start); start / stop / enter pre-operational switch it; reset node and reset
+  communication send the boot-up message and enter Pre-operational (CiA 301 figure 48; the
+  bridge does not restart its application, its parameters stay);
+- the heartbeat (0x700 + node-ID, one byte: the state) is sent by :meth:`BridgeNmt.tick` from
+  the bridge's own thread through the bridge's port (so the bus log has it), every 1017h ms
+  of the clock ``tick`` is given (the loop's pacer; the service thread's wall clock between
+  runs); 1017h = 0 (the default) sends none;
+- ``on_state(new)`` lets the node react: the loop stops the axis when the bridge leaves
+  Operational while the axis is enabled (docs/peers.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from collections.abc import Callable
+
+import canopen
+
+from virtual_bus.contract import HEARTBEAT_BASE, NmtCommand, NmtState
+
+from .od import HEARTBEAT_PRODUCER
+
+log = logging.getLogger("bridge")
+
+_TARGET = {
+    NmtCommand.START: NmtState.OPERATIONAL,
+    NmtCommand.STOP: NmtState.STOPPED,
+    NmtCommand.ENTER_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
+}
+
+
+class BridgeNmt:
+    """NMT slave state and heartbeat producer of the bridge's LocalNode (see module doc).
+
+    send(can_id, data): sends one frame through the bridge's port. on_state(new): called
+    after every change of state (not for a command that leaves it unchanged).
+    """
+
+    def __init__(
+        self,
+        node: canopen.LocalNode,
+        send: Callable[[int, bytes], None],
+        on_state: Callable[[NmtState], None] | None = None,
+    ) -> None:
+        self.id = node.id
+        self.state = NmtState.OPERATIONAL
+        self._send = send
+        self._on_state = on_state
+        self._can_id = HEARTBEAT_BASE + node.id
+        self._period_s = 0.0
+        self._due_s: float | None = None
+        self.heartbeats_sent = 0
+        # LocalNode's NmtSlave handles 1017h writes with a python-can periodic task; the
+        # bridge sends its heartbeat itself, so that handler goes with the NmtSlave
+        node._write_callbacks.remove(node.nmt.on_write)  # canopen 2.4 has no public remover
+        node.add_write_callback(self._on_write)
+        period = node.object_dictionary[HEARTBEAT_PRODUCER].default
+        self.set_period_ms(int(period or 0))
+
+    # --- NMT commands (COB-ID 0, subscribed in place of NmtSlave.on_command) ----------------
+    def on_command(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) != 2:
+            return  # the frame guard admits only 2-byte NMT frames
+        specifier, node_id = data[0], data[1]
+        if node_id not in (0, self.id):
+            return
+        try:
+            command = NmtCommand(specifier)
+        except ValueError:
+            allowed = ", ".join(f"0x{c:02X}" for c in NmtCommand)
+            log.warning("NMT command 0x%02X ignored; allowed %s", specifier, allowed)
+            return
+        self.execute(command)
+
+    def execute(self, command: NmtCommand) -> None:
+        if command in (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION):
+            self._set(NmtState.INITIALISING)
+            self._send(self._can_id, bytes([NmtState.INITIALISING]))  # boot-up
+            self._due_s = None  # the heartbeat starts anew with the next tick
+            self._set(NmtState.PRE_OPERATIONAL)
+        else:
+            self._set(_TARGET[command])
+
+    def _set(self, new: NmtState) -> None:
+        if new is self.state:
+            return
+        log.info("bridge %d: NMT %s -> %s", self.id, self.state.name, new.name)
+        self.state = new
+        if self._on_state is not None:
+            self._on_state(new)
+
+    @property
+    def sdo_blocked(self) -> bool:
+        """CiA 301 table 46: no SDO service in Stopped."""
+        return self.state is NmtState.STOPPED
+
+    # --- heartbeat producer (1017h) ---------------------------------------------------------
+    def _on_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
+        if index == HEARTBEAT_PRODUCER:
+            self.set_period_ms(struct.unpack("<H", bytes(data))[0])
+
+    def set_period_ms(self, period_ms: int) -> None:
+        self._period_s = period_ms / 1000.0
+        self._due_s = None
+
+    def tick(self, now_s: float) -> None:
+        """Send the heartbeat if one is due at ``now_s`` (seconds of any clock; called at
+        least every period, the loop's cycle or the service thread's few ms)."""
+        period = self._period_s
+        if period <= 0.0:
+            return
+        due = self._due_s
+        if due is None or not due - period <= now_s <= due + period:
+            # the first tick, or another clock (the loop's pacer after the service thread's
+            # wall clock, or back): the period starts now
+            self._due_s = now_s + period
+            return
+        if now_s < due:
+            return
+        self._due_s = due + period
+        self._send(self._can_id, bytes([self.state]))
+        self.heartbeats_sent += 1

@@ -1,0 +1,47 @@
+"""``python -m hil freqresp``: the speed loop's frequency response on the simulated axis."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from bridge.commands.freqresp import add_excitation_arguments, plan_maker, write_results
+from virtual_bus import cli
+
+NAME = "freqresp"
+HELP = "the speed loop's frequency response (Fig. 2) on the simulated axis, offline"
+DESCRIPTION = (
+    "The excitation and estimate of `python -m bridge freqresp` through the bridge's loop "
+    "around the compiled kernel of the axis file; the Bode figure shows the analytic response "
+    "of the linearised two-mass model (eq. 2, 6a with the current lag and the PDO delay) "
+    "beside the measurement."
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = DESCRIPTION
+    parser.add_argument("--axis", type=cli.existing_file, required=True, help="axis file")
+    parser.add_argument("--out", type=cli.output_dir, required=True, help="report directory")
+    add_excitation_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from plant_sim.physics.model import AxisPlant
+
+    from ..offline import analytic_loop, frequency_response
+    from .common import simulated_axis_file
+
+    axis = simulated_axis_file(args.axis)
+    plan = plan_maker(args)(axis.control.position_cycle)
+    fr = frequency_response(AxisPlant(axis), plan, axis.transmission_ratio, axis.control.kv)
+    f = np.geomspace(plan.multisine.f_min_hz, plan.multisine.f_max_hz, 600)
+    reference = analytic_loop(axis, f)
+    label = "eq. 6a (linearised two-mass, current lag, PDO delay)"
+    write_results(
+        fr,
+        args.out,
+        f"speed loop of {args.axis.name}, simulated",
+        None if reference is None else (label, f, reference),
+    )
+    return 0

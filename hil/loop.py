@@ -1,0 +1,142 @@
+"""The bridge's loop without a bus, around any steppable plant (offline commissioning, proofs).
+
+Per position cycle k, as the bridge over CANopen (docs/canopen_layout.md): the sensors are
+read at t_k; eq. 7 on the load scale with the velocity feed-forward, ``omega_c = k_r (k_v
+(x_ref - x_l) + k_vff v_ref)`` (:class:`regulator.PositionController`); eq. 15 through
+:class:`regulator.BacklashRegulator` (or omega_c unchanged with the regulator off); the set
+point computed at SYNC k takes effect at SYNC k+1 (the PDO delay). The plant is anything with
+``advance(speed_setpoint_rad_s, disturbance_nm)`` and the readings ``motor_position_rad``,
+``motor_speed_rad_s``, ``load_position``, ``motor_torque_nm``: the compiled kernel's
+:class:`plant_sim.physics.model.AxisPlant`, or the tests' independent plant.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from regulator import BacklashRegulator, PositionController, RegulatorConfig
+from regulator.tuning import Record, SafetyLimits, safety_stop
+
+
+class Plant(Protocol):
+    def advance(self, speed_setpoint_rad_s: float, disturbance_nm: float = 0.0) -> None: ...
+
+    @property
+    def motor_position_rad(self) -> float: ...
+
+    @property
+    def motor_speed_rad_s(self) -> float: ...
+
+    @property
+    def load_position(self) -> float: ...
+
+    @property
+    def motor_torque_nm(self) -> float: ...
+
+
+@dataclass(frozen=True)
+class LoopTrace:
+    """One value per cycle: reference, load position, the set point sent (rad/s), motor
+    speed, torque, beta, lambda."""
+
+    position_reference: np.ndarray
+    load_position: np.ndarray
+    omega_r: np.ndarray
+    motor_speed: np.ndarray
+    torque: np.ndarray
+    beta: np.ndarray
+    switching_factor: np.ndarray
+
+    def record(self, stopped: str | None = None) -> Record:
+        return Record(
+            self.position_reference,
+            self.load_position,
+            self.beta,
+            self.switching_factor,
+            stopped,
+            self.torque,
+        )
+
+
+def run_loop(
+    plant: Plant,
+    position: np.ndarray,
+    speed: np.ndarray,
+    kr: float,
+    regulator: RegulatorConfig,
+    velocity_feedforward: float = 0.0,
+    disturbance_nm: np.ndarray | None = None,
+) -> LoopTrace:
+    """Play the reference (load units, load units/s per cycle) on ``plant`` (module doc)."""
+    n = position.size
+    controller = PositionController(regulator.kv, kr)
+    reg = BacklashRegulator.from_config(regulator)
+    dist = np.zeros(n) if disturbance_nm is None else disturbance_nm
+    out = np.empty((7, n))
+    latched = 0.0  # the set point in force during this cycle (sent at the previous SYNC)
+    for k in range(n):
+        x_l = plant.load_position
+        omega_s = kr * speed[k]
+        omega_c = controller.step(position[k], x_l) + velocity_feedforward * omega_s
+        omega_r = reg.step(omega_s, omega_c)
+        out[:, k] = (
+            position[k],
+            x_l,
+            omega_r,
+            plant.motor_speed_rad_s,
+            plant.motor_torque_nm,
+            reg.vibration_level,
+            reg.switching_factor,
+        )
+        plant.advance(latched, float(dist[k]))
+        latched = omega_r
+    return LoopTrace(*out)
+
+
+def trial_runner(
+    make_plant: Callable[[float], Plant],
+    position: np.ndarray,
+    speed: np.ndarray,
+    kr: float,
+    base: RegulatorConfig,
+    safety: SafetyLimits,
+    velocity_feedforward: float = 0.0,
+    disturbance_nm: np.ndarray | None = None,
+) -> Callable[[float | None], Record]:
+    """A :data:`regulator.tuning.Runner` on fresh plants (``make_plant(start)``): each trial
+    from the same state, the bridge's safety limits applied to what it recorded."""
+
+    def run(beta_t: float | None) -> Record:
+        config = RegulatorConfig(
+            kv=base.kv,
+            cycle_s=base.cycle_s,
+            n=base.n,
+            beta_t_rad_s=beta_t if beta_t is not None else base.beta_t_rad_s,
+            tv_s=base.tv_s,
+            tf_s=base.tf_s,
+            enabled=beta_t is not None,
+        )
+        trace = run_loop(
+            make_plant(float(position[0])),
+            position,
+            speed,
+            kr,
+            config,
+            velocity_feedforward,
+            disturbance_nm,
+        )
+        record = trace.record()
+        return Record(
+            record.position_reference,
+            record.load_position,
+            record.beta,
+            record.switching_factor,
+            safety_stop(record, safety),
+            record.torque,
+        )
+
+    return run
