@@ -386,7 +386,11 @@ class Bridge:
 
     # --- the bridge's own NMT slave (bridge.nmt) ------------------------------------------
     def _send_frame(self, can_id: int, data: bytes) -> None:
-        self._send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+        try:
+            self.port.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+        except (can.CanError, OSError) as exc:
+            self.timing.errors += 1
+            log.error("send of 0x%03X failed: %s", can_id, exc)
 
     def _nmt_changed(self, state: NmtState) -> None:
         """Outside Operational the bridge may not exchange PDOs (CiA 301 table 46): an
@@ -688,8 +692,9 @@ class Bridge:
         if present != full:
             counters.missed_cycles += 1
             counters.missed += (full & ~present).bit_count()
+        now_s = pacer.now()
         try:
-            self.controller.step_decoded(pacer.now(), present)
+            self.controller.step_decoded(now_s, present)
         except Exception as exc:  # a bug must not leave the last set point standing
             timing.errors += 1
             log.exception("controller step failed")
@@ -706,7 +711,7 @@ class Bridge:
                 0.0 if due is None else sync_wall - due, now - sync_wall, now - inputs_wall, work
             )
         self._record_pending = self.recorder is not None
-        self.nmt.tick(pacer.now())
+        self.nmt.tick(now_s)  # the heartbeat (1017h), on the loop's clock
         self._k = k + 1
 
     def run(self, cycles: int | None = None, until: Callable[[Bridge], bool] | None = None) -> int:

@@ -28,7 +28,9 @@ SocketCAN vcan0 (a kernel with a CAN stack, e.g. a User-mode Linux guest); ``vir
 python-can's in-process bus. ``--python``: the bridge's cycle core as Python (a bridge
 installed without numba). The drive of ``--bus udp`` is served by the same code as its
 process (``plant_sim drive``), in the bridge's process and thread (lockstep), so that one
-callgrind run sees both. ``--cpu-time``: the thread's CPU time of the same sections instead,
+callgrind run sees both. For ``bridge`` and ``drive`` the harness's own wrappers are counted
+in a second run around a stub that does nothing but call the two hooks, and subtracted (both
+figures are printed). ``--cpu-time``: the thread's CPU time of the same sections instead,
 without valgrind (where valgrind cannot run, e.g. in a User-mode Linux guest). Needs
 valgrind otherwise; run from the checkout (``cd`` there first). Works
 on older checkouts too (before the frame ports: the drive's loop then receives messages),
@@ -212,39 +214,88 @@ def _inner(args: argparse.Namespace) -> None:
                 run = counted(lambda: play_references(sim, refs))
             else:
                 bridge = sim.bridge
-                cycle, peer = bridge.run_cycle, bridge.peer_poll
-                bridge_path = args.path == "bridge"
-
-                def run_cycle() -> None:
-                    if bridge.cycle_index < WARM_UP_CYCLES:
-                        cycle()
-                    elif bridge_path:
-                        counted(cycle)
-                    else:
-                        cycle()
-
-                def peer_poll() -> int:
-                    if bridge.cycle_index < WARM_UP_CYCLES:
-                        return peer()  # type: ignore[no-any-return]
-                    if bridge_path:  # inside the counted cycle: left out
-                        return left_out(peer)  # type: ignore[no-any-return]
-                    return counted(peer)  # type: ignore[no-any-return]
-
-                def quiet(hook: Callable[[int], None]) -> Callable[[int], None]:
-                    def run(k: int) -> None:
-                        if bridge.cycle_index < WARM_UP_CYCLES or not bridge_path:
-                            hook(k)
-                        else:
-                            left_out(lambda: hook(k))
-
-                    return run
-
+                run_cycle, peer_poll, quiet = _hooks(bridge, args.path == "bridge")
                 bridge.run_cycle = run_cycle  # type: ignore[method-assign]
                 bridge.peer_poll = peer_poll
-                run = _play_quiet(sim, refs, quiet) if bridge_path else play_references(sim, refs)
+                if args.path == "bridge":
+                    run = _play_quiet(sim, refs, quiet)
+                else:
+                    run = play_references(sim, refs)
     print(f"cycles {run.cycles}, missed TPDOs {run.counters.missed}, {run.state.name}")
     if meter is not None:
-        print(f"CPU µs per {args.path} cycle: {1e6 * meter.total_s / args.cycles:.1f}")
+        per_cycle_s = meter.total_s / args.cycles
+        if args.path != "lockstep":  # less the wrappers' own time, measured apart
+            counted = left_out = harness = CpuMeter()
+            _harness(args)
+            per_cycle_s -= harness.total_s / args.cycles
+        print(f"CPU µs per {args.path} cycle: {1e6 * per_cycle_s:.1f}")
+
+
+def _hooks(bridge: Any, bridge_path: bool) -> tuple[Callable[[], None], Callable[[], int], Any]:
+    """The bridge's ``run_cycle`` and ``peer_poll`` wrapped (after the warm-up) so that
+    callgrind counts the bridge's cycle without the drive's work (``bridge_path``) or the
+    drive's work alone; ``quiet`` wraps the ``before_sync`` hook (left out of the bridge's
+    count)."""
+    cycle, peer = bridge.run_cycle, bridge.peer_poll
+
+    def run_cycle() -> None:
+        if bridge.cycle_index < WARM_UP_CYCLES:
+            cycle()
+        elif bridge_path:
+            counted(cycle)
+        else:
+            cycle()
+
+    def peer_poll() -> int:
+        if bridge.cycle_index < WARM_UP_CYCLES:
+            return peer()  # type: ignore[no-any-return]
+        if bridge_path:  # inside the counted cycle: left out
+            return left_out(peer)  # type: ignore[no-any-return]
+        return counted(peer)  # type: ignore[no-any-return]
+
+    def quiet(hook: Callable[[int], None]) -> Callable[[int], None]:
+        def run(k: int) -> None:
+            if bridge.cycle_index < WARM_UP_CYCLES or not bridge_path:
+                hook(k)
+            else:
+                left_out(lambda: hook(k))
+
+        return run
+
+    return run_cycle, peer_poll, quiet
+
+
+class _StubBridge:
+    """What the harness wraps, doing nothing but the bridge's calls of its two hooks: the
+    harness's own instructions per cycle (``--inner --harness``), subtracted from the
+    count."""
+
+    def __init__(self) -> None:
+        self.cycle_index = WARM_UP_CYCLES
+        self.before_sync: Callable[[int], None] | None = None
+        self.peer_poll: Callable[[], int] | None = lambda: 1
+
+    def run_cycle(self) -> None:
+        k = self.cycle_index
+        if self.before_sync is not None:
+            self.before_sync(k)
+        if self.peer_poll is not None:
+            self.peer_poll()
+        self.cycle_index = k + 1
+
+
+def _harness(args: argparse.Namespace) -> None:
+    """The wrappers of :func:`_hooks` around :class:`_StubBridge`, ``args.cycles`` times."""
+    stub = _StubBridge()
+    run_cycle, peer_poll, quiet = _hooks(stub, args.path == "bridge")
+    stub.run_cycle = run_cycle  # type: ignore[method-assign]
+    stub.peer_poll = peer_poll
+    if args.path == "bridge":
+        stub.before_sync = quiet(lambda k: None)
+    gc.collect()
+    gc.freeze()
+    for _ in range(args.cycles):
+        stub.run_cycle()
 
 
 def _play_quiet(sim: Any, refs: Any, quiet: Callable[[Any], Any]) -> Any:
@@ -264,7 +315,7 @@ def _play_quiet(sim: Any, refs: Any, quiet: Callable[[Any], Any]) -> Any:
     return play_references(sim, refs)
 
 
-def _command(args: argparse.Namespace, out: Path) -> list[str]:
+def _command(args: argparse.Namespace, out: Path, harness: bool = False) -> list[str]:
     command = [
         "valgrind",
         "--tool=callgrind",
@@ -281,8 +332,31 @@ def _command(args: argparse.Namespace, out: Path) -> list[str]:
         f"--bus={args.bus}",
         *(["--record"] if args.record else []),
         *(["--python"] if args.python else []),
+        *(["--harness"] if harness else []),
     ]
     return command
+
+
+def _count(args: argparse.Namespace, harness: bool = False) -> tuple[int, str] | None:
+    """Instructions callgrind counted in one run of ``--inner`` (None: it failed; its output
+    went to stderr) and what the run printed."""
+    with contextlib.ExitStack() as stack:
+        tmp = stack.enter_context(tempfile.TemporaryDirectory())
+        out = Path(tmp) / "callgrind.out"
+        command = _command(args, out, harness)
+        if args.bus == "udp" and not harness:
+            sys.path.insert(0, str(ROOT))
+            from virtual_bus.netns import NetworkNamespace
+
+            ns = stack.enter_context(NetworkNamespace.create())
+            command = ns.command(command)
+        env = dict(os.environ, PYTHONHASHSEED="0")
+        done = subprocess.run(command, capture_output=True, text=True, env=env, check=False)
+    collected = re.search(r"Collected : (\d+)", done.stderr)
+    if done.returncode != 0 or collected is None:
+        print(done.stdout + done.stderr[-3000:], file=sys.stderr)
+        return None
+    return int(collected.group(1)), done.stdout.strip()
 
 
 def main(argv: list[str]) -> int:
@@ -298,6 +372,7 @@ def main(argv: list[str]) -> int:
         help="the thread's CPU time of the same sections, without valgrind (µs per cycle)",
     )
     parser.add_argument("--inner", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--harness", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.cycles < 1:
         print(f"--cycles {args.cycles}: must be >= 1", file=sys.stderr)
@@ -305,6 +380,9 @@ def main(argv: list[str]) -> int:
     if args.record and (args.bus != "virtual" or args.path != "lockstep"):
         print("--record: only with --path lockstep --bus virtual", file=sys.stderr)
         return 2
+    if args.inner and args.harness:
+        _harness(args)
+        return 0
     if args.inner or (args.cpu_time and args.bus != "udp"):
         _inner(args)
         return 0
@@ -317,28 +395,23 @@ def main(argv: list[str]) -> int:
             return subprocess.run(ns.command(argv), check=False).returncode
     # a kill ends the run like ^C: the namespace and the temporary files are removed
     signal.signal(signal.SIGTERM, signal.default_int_handler)
-    with contextlib.ExitStack() as stack:
-        tmp = stack.enter_context(tempfile.TemporaryDirectory())
-        out = Path(tmp) / "callgrind.out"
-        command = _command(args, out)
-        if args.bus == "udp":
-            sys.path.insert(0, str(ROOT))
-            from virtual_bus.netns import NetworkNamespace
-
-            ns = stack.enter_context(NetworkNamespace.create())
-            command = ns.command(command)
-        env = dict(os.environ, PYTHONHASHSEED="0")
-        done = subprocess.run(command, capture_output=True, text=True, env=env, check=False)
-    collected = re.search(r"Collected : (\d+)", done.stderr)
-    if done.returncode != 0 or collected is None:
-        print(done.stdout + done.stderr[-3000:], file=sys.stderr)
+    counted_run = _count(args)
+    if counted_run is None:
         return 1
-    print(done.stdout.strip())
+    total, printed = counted_run
+    print(printed)
+    harness = 0
+    if args.path != "lockstep":  # the wrappers' own instructions, counted apart
+        harness_run = _count(args, harness=True)
+        if harness_run is None:
+            return 1
+        harness = harness_run[0] // args.cycles
     what = {"lockstep": "lockstep cycle", "bridge": "bridge cycle", "drive": "drive SYNC"}
     print(
         f"instructions per {what[args.path]} ({args.bus} bus"
         + (", bridge core in Python" if args.python else "")
-        + f"): {int(collected.group(1)) // args.cycles}"
+        + f"): {total // args.cycles - harness}"
+        + (f" (counted {total // args.cycles}, less the harness's {harness})" if harness else "")
     )
     return 0
 
