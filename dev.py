@@ -471,6 +471,16 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
                     "lockstep with trace and bus log", "lockstep_recording.cycles_per_s", "cycles/s"
                 ),
                 Figure(
+                    "solve_ivp reference in the same run: real-time factor",
+                    "reference.realtime_factor",
+                    "×",
+                ),
+                Figure(
+                    "lockstep per unit of the reference's speed (host-independent)",
+                    "lockstep.cycles_per_s_per_reference_factor",
+                    "cycles/s per ×",
+                ),
+                Figure(
                     f"{rt}: SYNC-to-set-point latency median", "realtime.latency_us_median", "µs"
                 ),
                 Figure(f"{rt}: latency p99", "realtime.latency_us_p99", "µs"),
@@ -533,7 +543,30 @@ def _realtime_bench(rate_hz: int, seconds: float) -> Bench:
             Figure(f"{rt}: skipped SYNCs", "realtime.skipped_syncs", "SYNCs"),
             Figure(f"{rt}: cycles without all TPDOs", "realtime.missed_tpdo_cycles", "cycles"),
             Figure(f"{rt}: loop CPU per cycle", "realtime.cpu_us_per_cycle", "µs"),
+            Figure(
+                f"{rt}: loop CPU per cycle, share of the period",
+                "realtime.cpu_fraction_of_period",
+                "%",
+                100.0,
+            ),
+            Figure(f"{rt}: the loop's work (CPU) median", "realtime.work_cpu_us_median", "µs"),
+            Figure(f"{rt}: the loop's work (CPU) p99", "realtime.work_cpu_us_p99", "µs"),
             Figure(f"{rt}: drive CPU per cycle", "realtime.drive_cpu_us_per_cycle", "µs"),
+            Figure(f"{rt}: skipped by the loop's own work", "realtime.own_skipped_syncs", "SYNCs"),
+            Figure(f"{rt}: skipped after host stalls", "realtime.host_skipped_syncs", "SYNCs"),
+            Figure(
+                f"{rt}: cyclictest just before: wake-ups later than the loop's slack",
+                "realtime.host_latency.over_slack",
+                "wake-ups",
+            ),
+            Figure(
+                f"{rt}: cyclictest just before: wake-ups a cycle late",
+                "realtime.host_latency.late_cycles",
+                "wake-ups",
+            ),
+            Figure(
+                f"{rt}: cyclictest just before: p99", "realtime.host_latency.latency_us_p99", "µs"
+            ),
         ),
     )
 

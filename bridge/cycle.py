@@ -15,23 +15,32 @@ Running, per SYNC k (docs/canopen_layout.md: the set point takes effect at SYNC 
    discrepancy, software position limits (2014h) -- any of them stops the axis (quick stop,
    set point 0) with a :class:`StopReason` and a message until a reset command;
 3. interpolator: x_ref and its speed, omega_s = k_r * speed;
-4. eq. 7 on the load scale: omega_c = k_r k_v (x_ref - x_l) (:class:`regulator.PositionController`),
+4. eq. 7 on the load scale: omega_c = k_r k_v (x_ref - x_l) (``regulator.core``),
    plus k_vff omega_s where the axis has velocity feed-forward (200Bh; the simulator's law);
-5. eq. 15: omega_r = omega_s - lambda (omega_s - omega_c) (:class:`regulator.BacklashRegulator`),
-   clamped to the speed limit, sent as 60FFh.
+5. eq. 15: omega_r = omega_s - lambda (omega_s - omega_c) (``regulator.core``: the detector of
+   Fig. 5 and the switching factor), clamped to the speed limit, sent as 60FFh.
+
+The arithmetic of steps 1, 4 and 5 is :mod:`bridge.cyclecore` (one source, run as Python or
+compiled by numba: ``compiled``); the states, the supervision with its messages and the
+interpolator are here. The measurements and outputs live in the core's vector and read as
+attributes (``motor_position_rad``, ``omega_r``, ...).
 """
 
 from __future__ import annotations
 
 import logging
 import struct
+from collections.abc import Callable
 from enum import Enum, IntEnum
+from typing import Any
 
 from canopen.profiles.p402 import State402
 
-from regulator import BacklashRegulator, PositionController
+from regulator import core as rcore
+from regulator.errors import require_finite_input
 from virtual_bus.contract import CW_FAULT_RESET, NmtState
 
+from . import cyclecore as K
 from .errors import ParameterError, SdoAbort
 from .interpolator import Interpolator, Move, Table
 from .layout import CycleLayout, Signal, contract_layout
@@ -137,14 +146,72 @@ def enable_controlword(state: Drive402State, last_controlword: int) -> int:
     return cw
 
 
-#: index of each signal in the controller's raw sample list
-_SLOT = {
-    Signal.MOTOR_POSITION: 0,
-    Signal.LOAD_POSITION: 1,
-    Signal.STATUSWORD: 2,
-    Signal.TORQUE: 3,
-    Signal.MOTOR_VELOCITY: 4,
-}
+#: index of each signal's raw value in the core's vector (bridge.cyclecore)
+_RAW = {signal: K.RAW_INDEX[signal.value] for signal in Signal}
+
+
+def _decoder(
+    v: Any, unpack: Callable[[Any, int], tuple[int, ...]], at: tuple[int, ...]
+) -> Callable[[Any, int], None]:
+    """``decode(buffer, offset)``: the fields ``unpack`` reads at ``offset`` into ``v[at[0]]``,
+    ``v[at[1]]``, ... (one unpacking assignment for the usual frame sizes)."""
+    if len(at) == 1:
+        (a,) = at
+
+        def decode1(buffer: Any, offset: int) -> None:
+            (v[a],) = unpack(buffer, offset)
+
+        return decode1
+    if len(at) == 2:
+        a, b = at
+
+        def decode2(buffer: Any, offset: int) -> None:
+            v[a], v[b] = unpack(buffer, offset)
+
+        return decode2
+    if len(at) == 3:
+        a, b, c = at
+
+        def decode3(buffer: Any, offset: int) -> None:
+            v[a], v[b], v[c] = unpack(buffer, offset)
+
+        return decode3
+
+    def decode(buffer: Any, offset: int) -> None:
+        for i, value in zip(at, unpack(buffer, offset)):  # noqa: B905 (same length)
+            v[i] = value
+
+    return decode
+
+
+def _value(index: int, doc: str) -> property:
+    """A float of the controller's core vector (bridge.cyclecore) as an attribute."""
+
+    def get(self: CycleController) -> float:
+        return float(self._vm[index])
+
+    def put(self: CycleController, value: float) -> None:
+        self._vm[index] = value
+
+    return property(get, put, doc=doc)
+
+
+def _count(index: int, doc: str) -> property:
+    """An integer kept in the core vector, as an attribute."""
+
+    def get(self: CycleController) -> int:
+        return int(self._vm[index])
+
+    def put(self: CycleController, value: int) -> None:
+        self._vm[index] = float(value)
+
+    return property(get, put, doc=doc)
+
+
+# Enum members the per-SYNC code compares with, as module globals: CPython 3.11's EnumType has
+# a __getattr__, so reading a member off its class costs ~1,000 instructions, a global ~50
+# (callgrind).
+_RUNNING, _ENABLING, _STOPPED = BridgeState.RUNNING, BridgeState.ENABLING, BridgeState.STOPPED
 
 CW_STOPPED = State402.CW_QUICK_STOP
 CW_DISABLED = State402.CW_SWITCH_ON
@@ -161,39 +228,29 @@ class CycleController:
         scaling: Scaling,
         state: BridgeState = BridgeState.ENABLING,
         layout: CycleLayout | None = None,
+        *,
+        compiled: bool | None = False,
     ) -> None:
+        #: the cycle's arithmetic (bridge.cyclecore): Python, or compiled by numba
+        #: (``compiled`` None: where numba is installed; the loop's choice, docs/bridge.md)
+        self.core = K.load(compiled)
         self.scaling = scaling
         self.state = state
         self.stop_reason = StopReason.NONE
         self.stop_message = "none"
         self.params = params
+        self._v, self._det = self.core.vectors(params.n)
+        #: the vector as Python reads and writes it fastest (a memoryview of the array the
+        #: compiled core takes: a float in, a float out, no numpy scalar)
+        self._vm = self.core.view(self._v)
         self._build(params)
         self.interpolator = Interpolator(params.cycle_s)
         self._pending: list[Move | Table] = []
         self.set_layout(layout or contract_layout(2))
         self.set_scaling(scaling)
-        # measurements (SI) and their history for extrapolation
         self.now_s = 0.0
-        self.motor_position_rad = 0.0
-        self.load_position = 0.0
-        self.motor_speed_rad_s = 0.0
-        self.motor_torque_nm = 0.0
-        self.statusword = 0
-        self._load_speed = 0.0
-        self._have_sample = False
-        self._status_in = False  # the statusword came with this cycle's frames
-        # controller values of the last cycle
-        self.position_reference = 0.0
-        self.omega_s = 0.0
-        self.omega_c = 0.0
-        self.omega_r = 0.0
-        self.following_error = 0.0
-        self.motor_load_difference = 0.0
-        self._difference_at_enable = 0.0
         self.controlword = CW_DISABLED
         # supervision
-        self.consecutive_missed = 0
-        self.missed_cycles = 0
         self.cycles = 0
         self.drive_error_code = 0
         self._emcy_pending: tuple[int, int] | None = None
@@ -208,38 +265,91 @@ class CycleController:
 
     # --- configuration ---------------------------------------------------------------------
     def _build(self, params: BridgeParams) -> None:
-        self.position_controller = PositionController(params.kv_per_s, params.transmission_ratio)
-        self.regulator = BacklashRegulator.from_config(params.regulator_config())
+        reg = params.regulator_config()  # validated by BridgeParams
+        #: the regulator's configuration in force (rebuilt only while disabled)
+        self.regulator_config = reg
+        v = self._v
+        v[K.P_KR] = float(params.transmission_ratio)
+        v[K.P_KV] = float(params.kv_per_s)
+        v[K.P_CYCLE] = float(params.cycle_s)
+        v[K.P_REG_ON] = 1.0 if reg.enabled else 0.0
+        v[K.P_REG_N] = float(reg.n)
+        v[K.P_REG_TV] = float(reg.effective_tv_s)
+        v[K.P_REG_TF] = float(reg.tf_s)
+        v[K.P_REG_BT] = float(reg.beta_t_rad_s)
+        if len(self._det) != rcore.detector_state_size(reg.n):
+            self._v, self._det = self.core.vectors(reg.n)
+            self._v[:] = v
+            self._vm = self.core.view(self._v)
+            if hasattr(self, "_formats"):
+                self._make_decoders()  # they write into the vector
+        self._limits(params)
+        self.reset_regulator()
         self._kr = params.transmission_ratio
         self._cycle_s = params.cycle_s
+
+    def _limits(self, params: BridgeParams) -> None:
+        """The parameters the running cycle reads that may change at any time."""
+        v = self._v
+        v[K.P_VFF] = float(params.velocity_feedforward)
+        v[K.P_FE_LIMIT] = float(params.following_error_limit)
+        v[K.P_DISC_LIMIT] = float(params.discrepancy_limit)
+        v[K.P_POS_MIN] = float(params.position_limit_min)
+        v[K.P_POS_MAX] = float(params.position_limit_max)
+        v[K.P_SPEED_LIMIT] = float(params.speed_limit_rad_s)
+        v[K.P_PDO_TOLERANCE] = float(params.pdo_loss_tolerance)
+
+    def reset_regulator(self) -> None:
+        """The regulator back to its initial state: detector empty, beta = 0, lambda = 1."""
+        rcore.detector_reset(self._det)
+        self._vm[K.S_LAMBDA] = 1.0
 
     def set_scaling(self, scaling: Scaling) -> None:
         """Use ``scaling`` (e.g. the rated torque read from the drive at start-up)."""
         self.scaling = scaling
-        self._unit_per_inc = scaling.load_unit_per_increment
-        self._nm_per_permille = scaling.torque_nm_per_permille
-        self._rad_per_inc = scaling.motor_rad_per_increment
-        self._rad_s_per_unit = 1.0 / scaling.velocity_units_per_rad_s
+        v = self._v
+        v[K.P_UNIT_PER_INC] = scaling.load_unit_per_increment
+        v[K.P_NM_PER_PERMILLE] = scaling.torque_nm_per_permille
+        v[K.P_RAD_PER_INC] = scaling.motor_rad_per_increment
+        v[K.P_RAD_S_PER_UNIT] = 1.0 / scaling.velocity_units_per_rad_s
+        v[K.P_UNITS_PER_RAD_S] = scaling.velocity_units_per_rad_s
         self._units_per_rad_s = scaling.velocity_units_per_rad_s
 
     def set_layout(self, layout: CycleLayout) -> None:
         """Decode the frames of ``layout`` from the next step on (start-up only)."""
         self.layout = layout
-        self._decoders = tuple(
-            (struct.Struct(f.fmt).unpack, tuple(_SLOT[s] for s in f.signals)) for f in layout.frames
+        self._formats = tuple(
+            (struct.Struct(f.fmt).unpack_from, tuple(_RAW[s] for s in f.signals))
+            for f in layout.frames
         )
+        self._make_decoders()
         self._rpdo_struct = struct.Struct(layout.rpdo_fmt)
-        self._rpdo = bytearray(self._rpdo_struct.size)
-        self._load_measured = layout.load_measured
+        self._pack_rpdo = self._rpdo_struct.pack_into
+        self.set_rpdo_target(bytearray(self._rpdo_struct.size), 0)
         frame_of = {s: i for i, f in enumerate(layout.frames) for s in f.signals}
-        self._position_frame = frame_of[Signal.MOTOR_POSITION]
-        self._load_frame = frame_of.get(Signal.LOAD_POSITION, self._position_frame)
-        self._status_frame = frame_of[Signal.STATUSWORD]
-        self._raw = [0, 0, 0, 0, 0]
+        position = frame_of[Signal.MOTOR_POSITION]
+        v = self._v
+        v[K.P_LOAD_MEASURED] = 1.0 if layout.load_measured else 0.0
+        v[K.P_POS_FRAME] = float(1 << position)
+        v[K.P_LOAD_FRAME] = float(1 << frame_of.get(Signal.LOAD_POSITION, position))
+        v[K.P_STATUS_FRAME] = float(1 << frame_of[Signal.STATUSWORD])
+        v[K.P_ALL_FRAMES] = float((1 << len(layout.frames)) - 1)
+        for i in range(K.R_MOTOR_POSITION, K.V_SIZE):
+            v[i] = 0.0
+
+    def set_rpdo_target(self, buffer: bytearray, offset: int) -> None:
+        """Pack the RPDO payload into ``buffer[offset:]`` from now on (the loop's outgoing
+        frame, rewritten in place; virtual_bus.framing)."""
+        size = self._rpdo_struct.size
+        if offset < 0 or offset + size > len(buffer):
+            raise ValueError(f"RPDO target: {size} bytes at {offset} do not fit {len(buffer)}")
+        self._out = buffer
+        self._out_offset = offset
+        self._rpdo = memoryview(buffer)[offset : offset + size] if offset else buffer
 
     @property
-    def rpdo_payload(self) -> bytearray:
-        """The RPDO1 payload buffer; :meth:`step` rewrites it in place every cycle."""
+    def rpdo_payload(self) -> bytearray | memoryview:
+        """The RPDO1 payload; :meth:`step` rewrites it in place every cycle."""
         return self._rpdo
 
     @property
@@ -260,6 +370,7 @@ class CycleController:
                 abort_code=SdoAbort.DEVICE_STATE,
             )
         self.params = params
+        self._limits(params)
         if changed:
             self._build(params)
             self.interpolator = Interpolator(params.cycle_s, self.load_position)
@@ -384,67 +495,87 @@ class CycleController:
         return (self.state is BridgeState.RUNNING and self.interpolator.busy) or bool(self._pending)
 
     # --- the cycle -------------------------------------------------------------------------
-    def step(self, now_s: float, *frames: bytes | None) -> bytearray:
+    def step(self, now_s: float, *frames: bytes | None) -> bytearray | memoryview:
         """One SYNC: measurements in, RPDO payload (controlword, 60FFh) out.
 
         ``frames``: one payload of the right length per frame of :attr:`layout` (the
-        contract's: TPDO1, TPDO2), or None when missing this cycle. The returned bytearray
+        contract's: TPDO1, TPDO2), or None when missing this cycle. The returned buffer
         is reused by the next call.
         """
+        if len(frames) != len(self._decoders):
+            raise ValueError(f"{len(frames)} frames for a layout of {len(self._decoders)}")
+        present = 0
+        for slot, data in enumerate(frames):
+            if data is not None:
+                self.decode(slot, data, 0)
+                present |= 1 << slot
+        return self.step_decoded(now_s, present)
+
+    def decode(self, slot: int, buffer: bytes | bytearray | memoryview, offset: int) -> None:
+        """The payload of the layout's frame ``slot`` at ``buffer[offset:]`` (its mapping's
+        length, checked by the caller) into the raw values of this cycle."""
+        self._decoders[slot](buffer, offset)
+
+    def _make_decoders(self) -> None:
+        """One function per frame that unpacks its payload straight into the vector."""
+        self._decoders = tuple(_decoder(self._vm, unpack, at) for unpack, at in self._formats)
+        #: the loop's decoder of each frame (bridge.node; rebuilt with the vector)
+        self.decoders = self._decoders
+
+    def step_decoded(self, now_s: float, present: int) -> bytearray | memoryview:
+        """:meth:`step` for frames already given to :meth:`decode` (the loop decodes each
+        TPDO as it arrives): ``present`` has bit ``i`` set for each frame ``i`` of the layout
+        that came this cycle."""
         self.cycles += 1
         self.now_s = now_s
-        self._measure(frames)
         state = self.state
-        if state is BridgeState.RUNNING:
+        if state is _RUNNING and self._quiet():
+            # the common case in one call of the core; a stop or an error goes on below
+            interp = self.interpolator
+            interp.step()  # undone by the stop if the core finds one (_clear_motion)
+            code, value = self.core.step_running(
+                self._v, self._det, present, interp.position, interp.speed
+            )
+            if code == K.OK:
+                self.controlword = CW_RUNNING
+                self._pack_rpdo(self._out, self._out_offset, CW_RUNNING, value)
+            elif code == K.SUPERVISION:
+                self._run()  # stops the axis before it steps anything
+            else:
+                self._finish(code, value)
+            return self._rpdo
+        self.core.measure(self._v, present)
+        if state is _RUNNING:
             self._run()
-        elif state is BridgeState.ENABLING:
+        elif state is _ENABLING:
             self._enable()
-        elif state is BridgeState.STOPPED:
+        elif state is _STOPPED:
             self._output(CW_STOPPED, 0.0)
         else:
             self._output(CW_DISABLED, 0.0)
         return self._rpdo
 
-    def _measure(self, frames: tuple[bytes | None, ...]) -> None:
-        raw = self._raw
-        missing = False
-        if len(frames) != len(self._decoders):
-            raise ValueError(f"{len(frames)} frames for a layout of {len(self._decoders)}")
-        for (unpack, slots), data in zip(self._decoders, frames):  # noqa: B905 (checked)
-            if data is None:
-                missing = True
-                continue
-            for slot, value in zip(slots, unpack(data)):  # noqa: B905 (same length)
-                raw[slot] = value
-        position_in = frames[self._position_frame] is not None
-        self._status_in = frames[self._status_frame] is not None
-        load_in = frames[self._load_frame] is not None
-        # raw: motor position, load position, statusword, torque, motor velocity
-        self.statusword = raw[2]
-        self.motor_torque_nm = raw[3] * self._nm_per_permille
-        self.motor_speed_rad_s = raw[4] * self._rad_s_per_unit
-        if position_in:
-            self.motor_position_rad = raw[0] * self._rad_per_inc
-        elif self._have_sample:  # extrapolate over the lost sample
-            self.motor_position_rad += self.motor_speed_rad_s * self._cycle_s
-        if not self._load_measured:  # position feedback = motor
-            load_in = position_in
-            raw[1] = 0
-            load = self.motor_position_rad / self._kr
-        else:
-            load = raw[1] * self._unit_per_inc
-        if load_in:
-            if self._have_sample:
-                self._load_speed = (load - self.load_position) / self._cycle_s
-            self.load_position = load
-            self._have_sample = True
-        elif self._have_sample:
-            self.load_position += self._load_speed * self._cycle_s
-        if missing:
-            self.consecutive_missed += 1
-            self.missed_cycles += 1
-        else:
-            self.consecutive_missed = 0
+    def _quiet(self) -> bool:
+        """Nothing for :meth:`_supervise` but the checks the core makes (PDO loss, drive
+        state): no EMCY pending, heartbeats (if supervised) in time and operational -- the
+        same conditions as there."""
+        if self._emcy_pending is not None or self._encoder_emcy_pending is not None:
+            return False
+        at = self._heartbeat_at
+        if at is not None:
+            if self._heartbeat_state != NMT_OPERATIONAL:
+                return False
+            consumer_ms = self.params.heartbeat_consumer_ms
+            if consumer_ms and self.now_s - at > consumer_ms / 1000.0:
+                return False
+        at = self._encoder_heartbeat_at
+        if at is not None:
+            if self._encoder_state != NMT_OPERATIONAL:
+                return False
+            consumer_ms = self.params.heartbeat_consumer_ms
+            if consumer_ms and self.now_s - at > consumer_ms / 1000.0:
+                return False
+        return True
 
     def _supervise(self) -> bool:
         """Checks common to ENABLING and RUNNING; True if the axis was stopped."""
@@ -539,7 +670,7 @@ class CycleController:
         for item in self._pending:
             self.interpolator.queue(item)
         self._pending.clear()
-        self.regulator.reset()
+        self.reset_regulator()
         self._difference_at_enable = self.motor_position_rad / self._kr - self.load_position
 
     def _run(self) -> None:
@@ -554,58 +685,53 @@ class CycleController:
                 + (f", error code 0x{self.drive_error_code:04X})" if fault else ")"),
             )
             return
-        p = self.params
-        kr = self._kr
         interp = self.interpolator
         interp.step()
-        x_ref = interp.position
-        x_l = self.load_position
-        self.position_reference = x_ref
-        omega_s = kr * interp.speed
-        # eq. 7, plus the velocity feed-forward of the axis file (200Bh; 0 in the paper)
-        omega_c = self.position_controller.step(x_ref, x_l) + p.velocity_feedforward * omega_s
-        error = x_ref - x_l
-        difference = self.motor_position_rad / kr - x_l - self._difference_at_enable
-        self.following_error = error
-        self.motor_load_difference = difference
-        self.omega_s = omega_s
-        self.omega_c = omega_c
-        if self.consecutive_missed == 0:  # limits are checked on measured values only
-            if abs(error) > p.following_error_limit:
-                self._stop(
-                    StopReason.FOLLOWING_ERROR,
-                    f"following error {error:.6g} load units exceeds 2008h = "
-                    f"{p.following_error_limit:g}",
-                )
-                return
-            if abs(difference) > p.discrepancy_limit:
-                self._stop(
-                    StopReason.ENCODER_DISCREPANCY,
-                    f"motor encoder and load scale differ by {difference:.6g} load units "
-                    f"since enable, above 2009h = {p.discrepancy_limit:g}",
-                )
-                return
+        code, value = self.core.running(self._v, self._det, interp.position, interp.speed)
+        self._finish(code, value)
+
+    def _finish(self, code: int, value: int) -> None:
+        """What the core's ``code`` asks for at the end of a running cycle (the set point,
+        a stop with its reason, the error the regulator's classes raise)."""
+        p = self.params
+        if code == K.OK:
+            self.controlword = CW_RUNNING
+            self._pack_rpdo(self._out, self._out_offset, CW_RUNNING, value)
+        elif code == K.FOLLOWING_ERROR:
+            self._stop(
+                StopReason.FOLLOWING_ERROR,
+                f"following error {self.following_error:.6g} load units exceeds 2008h = "
+                f"{p.following_error_limit:g}",
+            )
+        elif code == K.DISCREPANCY:
+            self._stop(
+                StopReason.ENCODER_DISCREPANCY,
+                f"motor encoder and load scale differ by {self.motor_load_difference:.6g} "
+                f"load units since enable, above 2009h = {p.discrepancy_limit:g}",
+            )
+        elif code == K.POSITION_LIMIT:
             low, high = p.position_limit_min, p.position_limit_max
-            if (x_l < low and interp.speed <= 0.0) or (x_l > high and interp.speed >= 0.0):
-                self._stop(
-                    StopReason.POSITION_LIMIT,
-                    f"load position {x_l:.9g} load units outside the software position limits "
-                    f"2014h [{low:g}, {high:g}] and no move heads back inside",
-                )
-                return
-        omega_r = self.regulator.step(omega_s, omega_c)  # eq. 15
-        limit = p.speed_limit_rad_s
-        if omega_r > limit:
-            omega_r = limit
-        elif omega_r < -limit:
-            omega_r = -limit
-        self._output(CW_RUNNING, omega_r)
+            self._stop(
+                StopReason.POSITION_LIMIT,
+                f"load position {self.load_position:.9g} load units outside the software "
+                f"position limits 2014h [{low:g}, {high:g}] and no move heads back inside",
+            )
+        elif code == K.NOT_FINITE:  # the regulator package's error, as its classes raise it
+            require_finite_input("x_ref", self.interpolator.position)
+            require_finite_input("x_fb", self.load_position)
+            require_finite_input("omega_s", self.omega_s)
+            require_finite_input("omega_c", self.omega_c)
+            require_finite_input("u_rad_s", self.omega_s - self.omega_c)
+        elif code == K.OUT_OF_RANGE:  # raises struct.error: 60FFh cannot carry it
+            self._output(CW_RUNNING, self.omega_r)
+        else:
+            raise AssertionError(f"cycle core code {code}")
 
     def _output(self, controlword: int, omega_r: float) -> None:
         self.controlword = controlword
         self.omega_r = omega_r
-        self._rpdo_struct.pack_into(
-            self._rpdo, 0, controlword, round(omega_r * self._units_per_rad_s)
+        self._pack_rpdo(
+            self._out, self._out_offset, controlword, round(omega_r * self._units_per_rad_s)
         )
 
     def _clear_motion(self) -> None:
@@ -633,16 +759,35 @@ class CycleController:
         log.error("axis stopped at t = %.4f s: %s: %s", self.now_s, reason.name, message)
         return True
 
-    # --- live values -----------------------------------------------------------------------
+    # --- live values (the core's vector) -------------------------------------------------
     @property
     def vibration_level(self) -> float:
         """beta of the last cycle, rad/s (Fig. 5)."""
-        return self.regulator.vibration_level
+        return float(rcore.detector_beta(self._det))
 
     @property
     def switching_factor(self) -> float:
-        """lambda of the last cycle (eq. 15)."""
-        return self.regulator.switching_factor
+        """lambda of the last cycle (eq. 15; 1 with the regulator off)."""
+        return float(self._vm[K.S_LAMBDA])
+
+    motor_position_rad = _value(K.S_MOTOR_POSITION, "motor angle theta_m, rad (6064h)")
+    load_position = _value(K.S_LOAD_POSITION, "load position x_l, load units (60E4h:01)")
+    motor_speed_rad_s = _value(K.S_MOTOR_SPEED, "motor speed, rad/s (606Ch)")
+    motor_torque_nm = _value(K.S_TORQUE, "motor torque, N·m (6077h)")
+    position_reference = _value(K.S_POSITION_REFERENCE, "x_ref of the last cycle, load units")
+    omega_s = _value(K.S_OMEGA_S, "interpolator speed k_r·dx_ref/dt, rad/s")
+    omega_c = _value(K.S_OMEGA_C, "position controller's output (eq. 7), rad/s")
+    omega_r = _value(K.S_OMEGA_R, "the set point sent (eq. 15, clamped), rad/s")
+    following_error = _value(K.S_FOLLOWING_ERROR, "x_ref - x_l, load units")
+    motor_load_difference = _value(K.S_DIFFERENCE, "theta_m/k_r - x_l since enable")
+    _difference_at_enable = _value(K.S_DIFFERENCE_AT_ENABLE, "theta_m/k_r - x_l at enable")
+    statusword = _count(K.S_STATUSWORD, "6041h of the last cycle")
+    consecutive_missed = _count(K.S_CONSECUTIVE_MISSED, "cycles in a row without all TPDOs")
+    missed_cycles = _count(K.S_MISSED_CYCLES, "cycles without all TPDOs")
+
+    @property
+    def _status_in(self) -> bool:
+        return self._vm[K.S_STATUS_IN] != 0.0
 
     @property
     def error_register(self) -> int:

@@ -41,8 +41,10 @@ class HostLatency:
 
     ``late_cycles``: wake-ups at least one cycle (``cycle_us``) late, each a deadline any
     loop at that rate misses; ``over_500us``: wake-ups later than 500 µs (the TPDO window
-    of a 1 ms cycle); ``preempt_rt``: the kernel is a PREEMPT_RT kernel (cyclictest's
-    ``sysinfo.realtime``)."""
+    of a 1 ms cycle); ``over_slack``: wake-ups at least ``slack_us`` late (a loop that may
+    send its SYNC that late after waking, e.g. the bridge's spin before the SYNC plus the
+    lateness its pacer allows, misses a slot for each); ``preempt_rt``: the kernel is a
+    PREEMPT_RT kernel (cyclictest's ``sysinfo.realtime``)."""
 
     cycle_us: int
     cycles: int
@@ -53,6 +55,8 @@ class HostLatency:
     over_500us: int
     preempt_rt: bool
     kernel: str
+    slack_us: int = 0
+    over_slack: int = 0
 
     def as_dict(self) -> dict[str, float | int | bool | str]:
         return {
@@ -65,6 +69,8 @@ class HostLatency:
             "over_500us": self.over_500us,
             "preempt_rt": self.preempt_rt,
             "kernel": self.kernel,
+            "slack_us": self.slack_us,
+            "over_slack": self.over_slack,
         }
 
 
@@ -85,8 +91,9 @@ def _quantile_us(histogram: dict[int, int], overflow: int, total: int, q: float)
     return float("inf") if overflow else float(max(histogram, default=0))
 
 
-def parse_cyclictest_json(text: str, cycle_us: int) -> HostLatency:
-    """Read the ``--json`` file of a one-thread ``cyclictest -h N`` run."""
+def parse_cyclictest_json(text: str, cycle_us: int, slack_us: int | None = None) -> HostLatency:
+    """Read the ``--json`` file of a one-thread ``cyclictest -h N`` run (``slack_us``: count
+    the wake-ups at least that late too; default one cycle)."""
     try:
         doc = json.loads(text)
         threads = doc["thread"]
@@ -107,6 +114,7 @@ def parse_cyclictest_json(text: str, cycle_us: int) -> HostLatency:
         raise HostLatencyError(
             f"cyclictest histogram holds {in_histogram} samples, more than its {cycles} cycles"
         )
+    slack = cycle_us if slack_us is None else slack_us
     return HostLatency(
         cycle_us=cycle_us,
         cycles=cycles,
@@ -117,6 +125,8 @@ def parse_cyclictest_json(text: str, cycle_us: int) -> HostLatency:
         over_500us=overflow + sum(n for us, n in histogram.items() if us > 500),
         preempt_rt=bool(sysinfo.get("realtime", 0)),
         kernel=f"{sysinfo.get('release', '?')} {sysinfo.get('version', '')}".strip(),
+        slack_us=slack,
+        over_slack=overflow + sum(n for us, n in histogram.items() if us >= slack),
     )
 
 
@@ -156,6 +166,7 @@ def measure(
     *,
     executable: str | None = None,
     runner: Runner = _run,
+    slack_us: int | None = None,
 ) -> HostLatency:
     """Run ``cyclictest`` once and read its result (:class:`HostLatencyError` with the
     reason when it is not installed or fails, e.g. SCHED_FIFO refused without root)."""
@@ -174,4 +185,4 @@ def measure(
                 + (f": {why[-1]}" if why else "")
                 + " (SCHED_FIFO and mlockall need root or CAP_SYS_NICE/CAP_IPC_LOCK)"
             )
-        return parse_cyclictest_json(json_path.read_text(), round(1e6 / rate_hz))
+        return parse_cyclictest_json(json_path.read_text(), round(1e6 / rate_hz), slack_us)

@@ -146,6 +146,8 @@ class Interpolator:
         self._queue: deque[Move | Table] = deque()
         self._profile: _Profile | None = None
         self._table: Table | None = None
+        self._positions: list[float] = []  # the running table's samples as Python floats
+        self._speeds: list[float] = []
         self._j = 0  # samples of the running item so far
         self._dwell_left = 0
         self._next = self.position
@@ -176,6 +178,9 @@ class Interpolator:
         self._j = 0
         if isinstance(item, Table):
             self._table = item
+            # Python floats, read one a cycle (a numpy element costs a numpy scalar each)
+            self._positions = item.position.tolist()
+            self._speeds = item.speed.tolist()
             return
         self._profile = _Profile(item, self._next)
         self._dwell_left = round(item.dwell_s / self.cycle_s)
@@ -184,16 +189,15 @@ class Interpolator:
         """Advance one cycle: sample k of the reference and the speed over the coming cycle."""
         if self._profile is None and self._table is None and self._queue and not self._dwell_left:
             self._start_next()
-        table = self._table
-        if table is not None:
+        if self._table is not None:
             j = self._j
-            self.position = float(table.position[j])
-            self.speed = float(table.speed[j])
-            self._j = j + 1
-            self._next = self.position + self.speed * self.cycle_s
-            if self._j >= table.position.size:
+            self.position = position = self._positions[j]
+            self.speed = speed = self._speeds[j]
+            self._j = j = j + 1
+            self._next = position + speed * self.cycle_s
+            if j >= len(self._positions):
                 self._table = None
-                self._next = self.position
+                self._next = position
             return
         profile = self._profile
         if profile is not None:

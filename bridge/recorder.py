@@ -80,7 +80,6 @@ class TraceRecorder:
 
     def record(self, c: CycleController) -> None:
         """Append the row of the cycle ``c`` just computed."""
-        reg = c.regulator
         head = (
             c.now_s,
             c.position_reference,
@@ -89,8 +88,8 @@ class TraceRecorder:
             c.motor_speed_rad_s,
             c.load_position,
             c.motor_torque_nm,
-            reg.vibration_level,
-            reg.switching_factor,
+            c.vibration_level,
+            c.switching_factor,
         )
         tail = (
             c.omega_s,

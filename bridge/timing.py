@@ -60,6 +60,7 @@ class Pacer(Protocol):
     mode: TimeMode
     cycle_s: float
     spin_s: float  # poll (do not block) this long before a wall-clock instant
+    late_s: float  # a SYNC may leave this long after its instant (later: the slot is skipped)
 
     def now(self) -> float:
         """Control time, s (simulated in lockstep, wall-clock since start in real time)."""
@@ -90,6 +91,7 @@ class LockstepPacer:
 
     mode = TimeMode.LOCKSTEP
     spin_s = 0.0
+    late_s = 0.0  # never late: SYNC k+1 goes out when the exchange of cycle k is done
 
     def __init__(
         self,

@@ -19,6 +19,7 @@ import os
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from bridge.cycle import BridgeState
 from bridge.params import BridgeParams
@@ -67,6 +68,54 @@ def lockstep_run(axis: AxisConfig, cycles: int, record: bool) -> dict[str, float
     }
 
 
+def _floors_line(r: dict[str, Any]) -> str:
+    """The loop's cost against the period, its skipped SYNCs by cause, the host's floor
+    measured beside it, and which floor bound."""
+    period_us = 1e6 / r["rate_hz"]
+    line = (
+        f"floors: loop CPU {r['cpu_us_per_cycle']:.0f} µs/cycle = "
+        f"{100 * r['cpu_fraction_of_period']:.0f} % of the {period_us:.0f} µs period (its work "
+        f"alone, without spinning for the SYNC and waiting for the TPDOs: median "
+        f"{r['work_cpu_us_median']:.0f} µs = {100 * r['work_cpu_fraction_of_period']:.1f} %, "
+        f"p99 {r['work_cpu_us_p99']:.0f} µs; cycle core {r['cycle_core']}, frames: "
+        f"{r['frames']}); skipped SYNCs {r['skipped_syncs']}: {r['own_skipped_syncs']} by the "
+        f"loop's own work, {r['host_skipped_syncs']} after the host kept it off the CPU"
+    )
+    host = r.get("host_latency")
+    if host is not None:
+        line += (
+            f"; the host in this run, just before the loop (cyclictest, SCHED_FIFO "
+            f"{host['priority']}, CPU {host['cpu']}, {host['cycles']} wake-ups): "
+            f"{host['over_slack']} at least {host['slack_us']} µs late (the loop's slack: "
+            f"spin + allowed lateness), {host['late_cycles']} at least one cycle, p99 "
+            f"{host['latency_us_p99']:.0f} µs, max {host['latency_us_max']} µs"
+        )
+    elif "host_latency_error" in r:
+        line += f"; host in the same run: {r['host_latency_error']}"
+    return line + f"; binding floor: {r['binding_floor']}"
+
+
+#: Simulated seconds of section X the solve_ivp reference runs beside the lockstep figures.
+REFERENCE_S = 1.0
+
+
+def reference_run(axis: AxisConfig, seconds: float = REFERENCE_S) -> dict[str, float]:
+    """The host's speed in the same run as the lockstep figures: ``seconds`` of section X
+    through plant_sim's ``scipy.integrate.solve_ivp`` reference (the one ``plant_sim bench``
+    times beside the kernel; SciPy's integrator, not this project's code). Lockstep cycles
+    per second divided by its real-time factor changes with the project, not with the host."""
+    from plant_sim.physics.reference import simulate_reference
+    from plant_sim.physics.simulate import References
+
+    refs = SectionX().references(axis)
+    n = round(seconds / axis.control.position_cycle)
+    part = References(refs.position[:n], refs.speed[:n], refs.disturbance_nm[:n])
+    wall0 = time.perf_counter()
+    simulate_reference(axis, part)
+    wall = time.perf_counter() - wall0
+    return {"simulated_s": seconds, "wall_s": wall, "realtime_factor": seconds / wall}
+
+
 def _placement(drive: str) -> DrivePlacement:
     why = can_run_process_drive()
     if drive == "thread":
@@ -104,10 +153,15 @@ def run_bench(
     rt: RealTimeOptions | None = None,
     drive: str = "auto",
     drive_cpu: int | None = None,
+    host_beside: bool = True,
+    socketcan: str | None = None,
 ) -> dict[str, object]:
     results: dict[str, object] = {}
     rt = rt or RealTimeOptions()
-    placement = _placement(drive) if seconds is not None else DrivePlacement.THREAD
+    if socketcan is not None:  # two processes on the interface: no namespace, no root
+        placement = DrivePlacement.PROCESS
+    else:
+        placement = _placement(drive) if seconds is not None else DrivePlacement.THREAD
     if lockstep:
         for record in (False, True):
             key = "lockstep_recording" if record else "lockstep"
@@ -119,12 +173,33 @@ def run_bench(
                 f"{6000 / r['cycles_per_s']:.2f} s), CPU {r['cpu_us_per_cycle']:.0f} µs/cycle, "
                 f"missed TPDOs {r['missed_tpdos']}"
             )
+        ref = reference_run(axis)
+        results["reference"] = ref
+        for key in ("lockstep", "lockstep_recording"):
+            lock = results[key]
+            lock["cycles_per_s_per_reference_factor"] = (  # type: ignore[index]
+                lock["cycles_per_s"] / ref["realtime_factor"]  # type: ignore[index]
+            )
+        print(
+            f"reference in the same run: solve_ivp (scipy) {ref['simulated_s']:g} s of section "
+            f"X at {ref['realtime_factor']:.2f}x real time; lockstep per unit of it: "
+            f"{results['lockstep']['cycles_per_s_per_reference_factor']:.0f} and "  # type: ignore[index]
+            f"{results['lockstep_recording']['cycles_per_s_per_reference_factor']:.0f} "  # type: ignore[index]
+            "(host-independent: the project's speed)"
+        )
     if seconds is not None:
         if drive_cpu is None and placement is DrivePlacement.PROCESS:
             drive_cpu = _other_cpu(rt.cpu)
         load = os.getloadavg()
         r = realtime_run(
-            axis, seconds, rate_hz=rate_hz, rt=rt, placement=placement, drive_cpu=drive_cpu
+            axis,
+            seconds,
+            rate_hz=rate_hz,
+            rt=rt,
+            placement=placement,
+            drive_cpu=drive_cpu,
+            host_beside=host_beside,
+            socketcan=socketcan,
         )
         r["load_average_1_5_15"] = [round(x, 2) for x in load]
         results["realtime"] = r
@@ -145,12 +220,13 @@ def run_bench(
             )
         )
         print(f"latency histogram (µs): {r['latency_histogram_us']}")
-        print(
-            f"host alone (a clock-reading thread, same options, {r['host_gaps_over_50us']} gaps "
-            f"> 50 µs in 2 s, longest {r['host_gap_us_max']:.0f} µs): the floor under the "
-            "loop's maximum; CPU time the hypervisor stole during the run (ms): "
-            f"{r['host_steal_ms']}"
-        )
+        print(_floors_line(r))
+        if "host_gaps_over_50us" in r:
+            print(
+                f"host alone (a clock-reading thread, same options, {r['host_gaps_over_50us']} "
+                f"gaps > 50 µs in 2 s before the run, longest {r['host_gap_us_max']:.0f} µs)"
+            )
+        print(f"CPU time the hypervisor stole during the run (ms): {r['host_steal_ms']}")
     if json_path is not None:
         json_path.write_text(json.dumps(results, indent=2) + "\n")
     return results

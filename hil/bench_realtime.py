@@ -19,6 +19,18 @@ and its jitter, histograms, skipped SYNCs, overruns, cycles without all TPDOs, C
 loop's thread and of the drive process per cycle, CPU use of both processes, and what the
 host took: the gaps of a clock-reading thread before the run (:func:`host_floor`) and the
 hypervisor's steal time per CPU during it (:func:`virtual_bus.realtime.steal_s`).
+
+Which floor binds: the loop's CPU per cycle as a fraction of the period (all of it, and its
+work alone, without the spin before the SYNC and the wait for the TPDOs), the skipped SYNCs
+split into those the loop's own work caused and those after the host kept it off the CPU
+(:mod:`bridge.loopstats`), and -- with ``--rt-priority`` and ``--cpu``, where ``cyclictest``
+is installed -- the host's own floor measured in the same run, right before the loop, as
+long as the loop runs: ``cyclictest`` (rt-tests, :mod:`bridge.host_latency`) on the loop's
+CPU at the loop's priority, waking every cycle; beside each figure of it, the wake-ups later
+than the loop's slack (its spin before the SYNC plus the lateness its pacer allows): a
+wake-up that late is a slot no loop sleeping between cycles can meet. (Run beside the loop,
+one priority above it, cyclictest missed most of them: its wake-ups fell while the loop kept
+the virtual CPU awake -- measured, 1 against 20 in 20 s.)
 """
 
 from __future__ import annotations
@@ -28,6 +40,7 @@ import ctypes
 import dataclasses
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -39,6 +52,7 @@ from pathlib import Path
 
 import can
 
+from bridge import host_latency
 from bridge.cycle import BridgeState
 from bridge.errors import BridgeError
 from bridge.interpolator import Move
@@ -47,7 +61,7 @@ from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
 from bridge.timing import RealTimePacer
 from regulator import RegulatorConfig
-from virtual_bus import BusConfig, open_bus
+from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.contract import heartbeat_cob_id
 from virtual_bus.formats.axis import AxisConfig, dump_axis
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
@@ -116,25 +130,18 @@ def drive_options(rt: RealTimeOptions, drive_cpu: int | None) -> list[str]:
 
 
 def _drive_command(
-    ns: NetworkNamespace, axis_path: Path, rt: RealTimeOptions, drive_cpu: int | None
+    axis_path: Path,
+    rt: RealTimeOptions,
+    drive_cpu: int | None,
+    ns: NetworkNamespace | None,
+    socketcan: str | None,
 ) -> list[str]:
-    """``python -m plant_sim drive`` on udp_multicast inside ``ns`` with
-    :func:`drive_options`."""
-    return ns.command(
-        [
-            sys.executable,
-            "-m",
-            "plant_sim",
-            "drive",
-            "--interface",
-            "udp_multicast",
-            "--channel",
-            UDP_GROUP,
-            "--axis",
-            str(axis_path),
-            *drive_options(rt, drive_cpu),
-        ]
-    )
+    """``python -m plant_sim drive`` with :func:`drive_options`: on udp_multicast inside
+    ``ns``, or on the SocketCAN interface ``socketcan``."""
+    bus = ["socketcan", socketcan] if socketcan is not None else ["udp_multicast", UDP_GROUP]
+    argv = [sys.executable, "-m", "plant_sim", "drive", "--interface", bus[0], "--channel"]
+    argv += [bus[1], "--axis", str(axis_path), *drive_options(rt, drive_cpu)]
+    return argv if ns is None else ns.command(argv)
 
 
 def _wait_for_boot(bus: can.BusABC, drive_id: int, proc: subprocess.Popen[bytes]) -> None:
@@ -154,34 +161,43 @@ def _wait_for_boot(bus: can.BusABC, drive_id: int, proc: subprocess.Popen[bytes]
 
 @contextlib.contextmanager
 def _process_drive(
-    axis: AxisConfig, rt: RealTimeOptions, drive_cpu: int | None, drive_id: int
+    axis: AxisConfig,
+    rt: RealTimeOptions,
+    drive_cpu: int | None,
+    drive_id: int,
+    socketcan: str | None = None,
 ) -> Iterator[tuple[can.BusABC, subprocess.Popen[bytes], str]]:
-    """The drive process, the bridge's end of the bus and the name of the private network
-    namespace they share (created for the block, removed after it)."""
-    with (
-        tempfile.TemporaryDirectory() as tmp,
-        NetworkNamespace.create() as ns,
-        _entered(ns),
-    ):
+    """The drive process, the bridge's end of the bus and what the bus is: udp_multicast in
+    a private network namespace (created for the block, removed after it), or the SocketCAN
+    interface ``socketcan`` (e.g. vcan0 in a guest with a CAN stack)."""
+    with contextlib.ExitStack() as stack:
+        tmp = stack.enter_context(tempfile.TemporaryDirectory())
+        if socketcan is None:
+            ns: NetworkNamespace | None = stack.enter_context(NetworkNamespace.create())
+            stack.enter_context(_entered(ns))  # type: ignore[arg-type]
+            config = BusConfig(interface="udp_multicast", channel=UDP_GROUP)
+            what = f"udp_multicast in the private network namespace {ns.name}"  # type: ignore[union-attr]
+        else:
+            ns = None
+            config = BusConfig(interface=Interface.SOCKETCAN, channel=socketcan)
+            what = f"SocketCAN {socketcan}"
         axis_path = Path(tmp) / "axis.toml"
         axis_path.write_text(dump_axis(axis), encoding="utf-8")
-        bus = open_bus(BusConfig(interface="udp_multicast", channel=UDP_GROUP))
+        bus = open_bus(config)
+        stack.callback(bus.shutdown)
+        proc = subprocess.Popen(
+            _drive_command(axis_path, rt, drive_cpu, ns, socketcan), stdout=subprocess.DEVNULL
+        )
         try:
-            proc = subprocess.Popen(
-                _drive_command(ns, axis_path, rt, drive_cpu), stdout=subprocess.DEVNULL
-            )
-            try:
-                _wait_for_boot(bus, drive_id, proc)
-                yield bus, proc, ns.name
-            finally:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(10.0)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait()
+            _wait_for_boot(bus, drive_id, proc)
+            yield bus, proc, what
         finally:
-            bus.shutdown()
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(10.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
 
 
 def _queue_moves(bridge: Bridge, params: BridgeParams, seconds: float) -> None:
@@ -224,25 +240,60 @@ def host_floor(seconds: float = HOST_FLOOR_S) -> dict[str, float]:
     return {"host_gaps_over_50us": count, "host_gap_us_max": longest * 1e6}
 
 
-def _measure(bridge: Bridge, cycles: int, rt: RealTimeOptions) -> dict[str, float]:
+def host_latency_plan(rt: RealTimeOptions) -> tuple[str, int, int] | None:
+    """(cyclictest, CPU, priority) for the run's own host floor, or None where it cannot
+    run: no ``--rt-priority`` and ``--cpu``, not root, not installed."""
+    if rt.rt_priority is None or rt.cpu is None or os.geteuid() != 0:
+        return None
+    exe = shutil.which("cyclictest")
+    return None if exe is None else (exe, rt.cpu, rt.rt_priority)
+
+
+def host_latency_now(
+    plan: tuple[str, int, int], rate_hz: float, seconds: float, slack_s: float
+) -> dict[str, object]:
+    """cyclictest as :func:`host_latency_plan` says for ``seconds``: its figures, with the
+    wake-ups later than ``slack_s``."""
+    exe, cpu, priority = plan
+    try:
+        result = host_latency.measure(
+            rate_hz, seconds, cpu, priority, executable=exe, slack_us=round(slack_s * 1e6)
+        )
+    except host_latency.HostLatencyError as exc:
+        return {"host_latency_error": str(exc)}
+    return {"host_latency": {**result.as_dict(), "cpu": cpu, "priority": priority}}
+
+
+def _measure(
+    bridge: Bridge, cycles: int, rt: RealTimeOptions, host: tuple[str, int, int] | None
+) -> dict[str, object]:
+    pacer = bridge.pacer
+    rate_hz = 1.0 / pacer.cycle_s
+    before: dict[str, object] = {}
+    if host is not None:
+        print(f"bench: cyclictest first, {cycles / rate_hz:g} s (the host's floor in this run)")
+        before = host_latency_now(host, rate_hz, cycles / rate_hz, pacer.spin_s + pacer.late_s)
     applied = apply_realtime(rt)
     for line in applied:
         print(f"bench: {line}")
-    floor = host_floor()
+    floor = host_floor() if host is None else {}  # cyclictest measured the host instead
     steal0 = host_steal_s()
     wall0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
     n = bridge.run(until=lambda b: b.cycle_index >= cycles)
     wall = time.perf_counter() - wall0
     cpu, thread = time.process_time() - cpu0, time.thread_time() - thread0
     steal1 = host_steal_s()
+    cpu_us = 1e6 * thread / max(1, n)
     return {
         **floor,
+        **before,
         "host_steal_ms": {
             name: round(1e3 * (steal1[name] - steal0.get(name, 0.0)), 1) for name in steal1
         },
         "seconds": wall,
         "cycles": n,
-        "cpu_us_per_cycle": 1e6 * thread / max(1, n),
+        "cpu_us_per_cycle": cpu_us,
+        "cpu_fraction_of_period": cpu_us * 1e-6 * rate_hz,
         "cpu_percent_of_one_core": 100.0 * cpu / wall,
     }
 
@@ -256,9 +307,13 @@ def realtime_run(
     placement: DrivePlacement = DrivePlacement.PROCESS,
     drive_cpu: int | None = None,
     spin_s: float | None = None,
+    host_beside: bool = True,
+    socketcan: str | None = None,
 ) -> dict[str, object]:
     """One real-time run (module docstring); returns its figures. ``spin_s``: the pacer's
-    clock polling before each SYNC (None: its default)."""
+    clock polling before each SYNC (None: its default). ``host_beside``: cyclictest beside
+    the loop where it can run (:func:`host_latency_plan`). ``socketcan``: the drive process and
+    the bridge on that SocketCAN interface instead of udp_multicast in a namespace."""
     rt = rt or RealTimeOptions()
     axis = axis_at_rate(axis, rate_hz)
     params = bench_params(axis)
@@ -272,11 +327,11 @@ def realtime_run(
     }
     with contextlib.ExitStack() as stack:
         if placement is DrivePlacement.PROCESS:
-            bus, proc, netns = stack.enter_context(
-                _process_drive(axis, rt, drive_cpu, config.drive_id)
+            bus, proc, what = stack.enter_context(
+                _process_drive(axis, rt, drive_cpu, config.drive_id, socketcan)
             )
             drive_pid: int | None = proc.pid
-            result["bus"] = f"udp_multicast in the private network namespace {netns}"
+            result["bus"] = what
         else:
             from bridge.timing import TimeMode
 
@@ -311,20 +366,37 @@ def realtime_run(
         _queue_moves(bridge, params, seconds)
         bridge.timing = Timing(capacity=cycles + 64)  # no array grows during the run
         drive_cpu0 = _proc_cpu_s(drive_pid) if drive_pid is not None else 0.0
-        result.update(_measure(bridge, cycles, rt))
+        plan = host_latency_plan(rt) if host_beside else None
+        result["cycle_core"] = "compiled (numba)" if bridge.controller.core.compiled else "Python"
+        result["frames"] = bridge.frames.kind
+        result.update(_measure(bridge, cycles, rt, plan))
         if drive_pid is not None:
             drive_cpu_s = _proc_cpu_s(drive_pid) - drive_cpu0
             result["drive_cpu_percent_of_one_core"] = 100.0 * drive_cpu_s / result["seconds"]  # type: ignore[operator]
-            result["drive_cpu_us_per_cycle"] = 1e6 * drive_cpu_s / max(1, cycles)
+            ran = int(result["cycles"])  # type: ignore[call-overload]
+            result["drive_cpu_us_per_cycle"] = 1e6 * drive_cpu_s / max(1, ran)
         result["spin_us"] = bridge.pacer.spin_s * 1e6
         result.update(summary(bridge.timing, params.cycle_s))
         result["missed_tpdo_cycles"] = bridge.counters.missed_cycles
         result["late_tpdos"] = bridge.counters.late
         result["stopped"] = bridge.controller.state is BridgeState.STOPPED
         result["stop_message"] = bridge.controller.stop_message
+        result["binding_floor"] = binding_floor(result)
         if rt.rt_priority is not None:  # back to ordinary scheduling for the tear-down
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     return result
+
+
+def binding_floor(r: dict[str, object]) -> str:
+    """Which floor the run met: ``"none"`` (no slot skipped), ``"host"`` (every skipped SYNC
+    after the host kept the loop off the CPU), ``"loop"`` (its own work skipped more), or
+    ``"host and loop"``."""
+    own, host = int(r.get("own_skipped_syncs", 0)), int(r.get("host_skipped_syncs", 0))  # type: ignore[call-overload]
+    if own == 0 and host == 0:
+        return "none"
+    if own == 0:
+        return "host"
+    return "loop" if own > host else "host and loop"
 
 
 def can_run_process_drive() -> str | None:

@@ -55,6 +55,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="pin the drive process to CPU N (default with --cpu: another CPU)",
     )
+    parser.add_argument(
+        "--socketcan",
+        metavar="CHANNEL",
+        help="real time: the drive process and the bridge on this SocketCAN interface (e.g. "
+        "vcan0) instead of udp_multicast in a private network namespace",
+    )
+    parser.add_argument(
+        "--no-host-latency",
+        action="store_true",
+        help="real time: without cyclictest before the loop (default with --rt-priority and "
+        "--cpu where cyclictest is installed: the host's floor in the same run)",
+    )
     add_realtime_options(parser)
 
 
@@ -63,6 +75,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.skip_lockstep and args.skip_realtime:
         raise cli.UsageError("--skip-lockstep and --skip-realtime together leave nothing to run")
+    if args.socketcan is not None and args.drive == "thread":
+        raise cli.UsageError(
+            "--socketcan runs the drive as its own process; not with --drive thread"
+        )
     axis = simulated_axis_file(args.axis)  # refused before anything is said or run
     rt = realtime_options(args)
     progress = Progress(f"bridge {NAME}", quiet=args.quiet)
@@ -82,5 +98,7 @@ def run(args: argparse.Namespace) -> int:
         rt=rt,
         drive=args.drive,
         drive_cpu=args.drive_cpu,
+        host_beside=not args.no_host_latency,
+        socketcan=args.socketcan,
     )
     return 0

@@ -202,6 +202,10 @@ class StateMachine:
     def __init__(self) -> None:
         self.state = _TABLE[(None, Event.POWER_ON)].target
         self.controlword = 0
+        # unchanged_by's last answer (a master repeats one controlword in one state)
+        self._steady_state: State402 | None = None
+        self._steady_word = -1
+        self._steady = False
 
     def controlword_written(
         self,
@@ -222,6 +226,20 @@ class StateMachine:
         if command is None:
             return ()
         return self.command(command, quick_stop_stays=quick_stop_stays, fault_cleared=fault_cleared)
+
+    def unchanged_by(self, controlword: int) -> bool:
+        """Writing ``controlword`` again changes nothing: it is the last one written and its
+        command (if any) has no transition from the present state (a master repeats its
+        controlword with every set point)."""
+        if controlword != self.controlword:
+            return False
+        state = self.state
+        if state is self._steady_state and controlword == self._steady_word:
+            return self._steady  # the last answer: the same controlword in the same state
+        command = decode_command(controlword, controlword)
+        steady = command is None or (state, command) not in _TABLE
+        self._steady_state, self._steady_word, self._steady = state, controlword, steady
+        return steady
 
     def command(
         self,

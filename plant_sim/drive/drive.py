@@ -36,6 +36,8 @@ from types import TracebackType
 
 import can
 import canopen
+import numpy as np
+from canopen.network import NodeScanner
 
 from virtual_bus.contract import (
     CAN_ID_MASK,
@@ -48,6 +50,7 @@ from virtual_bus.contract import (
 )
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.frame_guard import FrameFault, FrameGuard
+from virtual_bus.framing import NOTHING, FramePort, OutFrame, frame_port
 
 from ..physics.model import AxisPlant
 from . import od as O
@@ -73,6 +76,13 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["DriveConfig", "SimulatedDrive", "TimeMode", "warm_up"]
 
+#: The services whose COB-IDs canopen's NodeScanner notes a node from.
+_SCANNED = frozenset(NodeScanner.SERVICES)
+# Enum members the per-SYNC code compares with, as module globals: CPython 3.11's EnumType has
+# a __getattr__, so reading a member off its class costs ~1,000 instructions, a global ~50
+# (callgrind).
+_OPERATIONAL = NmtState.OPERATIONAL
+
 
 #: At most this many frames received before the boot-up are dropped by :meth:`start`
 #: (bounded: traffic that goes on cannot hold the boot).
@@ -82,12 +92,14 @@ STALE_FRAMES_MAX = 100_000
 def warm_up(axis: AxisConfig) -> None:
     """Load (or compile, on an empty numba cache) every compiled function the drive calls:
     both physics kernels it steps, ``advance`` (Operation enabled, ramps) and
-    ``advance_torque`` (every other state), and the three measuring systems it reads after
-    each step and for SDO reads of 6064h, 606Ch, 60E4h (motor position, motor speed, load
-    position): each is a compiled function of its own, compiled at its first call."""
+    ``advance_torque`` (every other state), ``read_measured`` (its measuring systems after
+    each step) and the three measuring systems read one by one for SDO reads of 6064h,
+    606Ch, 60E4h (motor position, motor speed, load position): each is a compiled function
+    of its own, compiled at its first call."""
     plant = AxisPlant(axis)
     plant.advance(0.0)
     plant.advance_torque(0.0)
+    plant.read_measured(np.zeros(4))
     _ = (plant.motor_position_rad, plant.motor_speed_rad_s, plant.load_position)
 
 
@@ -139,6 +151,9 @@ class SimulatedDrive:
         self._sync_cob_id = 0
         self._rpdo_seen = False
         self._tx_messages: dict[int, can.Message] = {}
+        #: the loop's port while a caller's thread receives (receiving_here), its frames
+        self.port: FramePort | None = None
+        self._tx_frames: dict[int, OutFrame] = {}
 
         od = O.load_drive_od(self.config.eds_path, node_id)
         self._table = O.ObjectTable(od)
@@ -162,11 +177,12 @@ class SimulatedDrive:
             )
         else:
             self._heartbeat = WallClockHeartbeat(lambda: self._network.bus, node_id)
+        self._on_rpdo_frame_cb = self._gated(self._guarded(self._on_rpdo_frame))
         self._pdo = PdoEngine(
             self._table,
             send=self._send,
             subscriber=self._network,
-            on_frame=self._gated(self._guarded(self._on_rpdo_frame)),
+            on_frame=self._on_rpdo_frame_cb,
         )
         self._on_sync_frame_cb = self._gated(self._guarded(self._on_sync_frame))
         for fault in FrameFault:
@@ -298,9 +314,17 @@ class SimulatedDrive:
             for listener in listeners:
                 listener.on_message_received(msg)
 
+        # no kernel timestamp per frame (recvmsg: ~6,000 instructions each): the loop that
+        # dates its SYNC from it polls around the SYNC (--busy-poll) and reads it at once
+        self.port = port = frame_port(bus)
+        self._tx_frames.clear()
+        self._pdo.use_frames(port.frame, port.send)
         try:
             yield handle
         finally:
+            self._pdo.use_frames(None)
+            self.port = None
+            self._tx_frames.clear()
             if self._started:
                 network.notifier = can.Notifier(
                     bus, network.listeners, self.config.notifier_timeout_s
@@ -318,18 +342,65 @@ class SimulatedDrive:
         bus); the notifier restarts on exit.
         """
         with self.receiving_here() as handle:
-            bus = self._network.bus
-            assert bus is not None
-            recv = bus.recv
+            port = self.port
+            assert port is not None
+            take = self.take
 
             def poll() -> int:
                 n = 0
-                while (msg := recv(0.0)) is not None:
-                    handle(msg)
+                while (cob_id := port.receive(0.0)) != NOTHING:
+                    take(cob_id, port, handle)
                     n += 1
                 return n
 
             yield poll
+
+    def take(self, cob_id: int, port: FramePort, handle: Callable[[can.Message], None]) -> bool:
+        """One frame the caller's thread received on the drive's end of the bus (``port``,
+        :meth:`receiving_here`; ``cob_id``: what its ``receive`` returned): a SYNC or an RPDO
+        goes straight to the drive's handler, as the frame guard and canopen's dispatch would
+        hand it over (counted as the guard counts) when nothing but the drive listens to it;
+        anything else as a message to ``handle``. True when a SYNC cycle ran."""
+        if cob_id >= 0:
+            network = self._network
+            subscribers = network.subscribers.get(cob_id)
+            if subscribers is not None and len(subscribers) == 1 and len(network.listeners) == 1:
+                callback = subscribers[0]
+                if callback is self._on_sync_frame_cb:
+                    if port.length <= 1:
+                        self.guard.accepted += 1
+                        self._sync_direct(cob_id)
+                        return True
+                elif callback is self._on_rpdo_frame_cb and self._rpdo_direct(cob_id, port):
+                    return False
+        syncs = self._sync_count
+        handle(port.message())
+        return self._sync_count != syncs
+
+    def _sync_direct(self, cob_id: int) -> None:
+        """A SYNC of 0 or 1 byte, admitted: what its callback does (and its wrapper)."""
+        try:
+            with self._lock:
+                if self._errors.codes:
+                    self._errors.clear(EMCY_SYNC_LENGTH)
+                self._sync()
+        except Exception as exc:  # as the callback's wrapper: kept for check()
+            logger.exception("drive %d: callback for 0x%03X failed", self.node_id, cob_id)
+            self._callback_errors.append(exc)
+
+    def _rpdo_direct(self, cob_id: int, port: FramePort) -> bool:
+        """An RPDO in NMT Operational: kept for the next SYNC; False (nothing done) where
+        the guard refuses it or the network's scanner would note its node."""
+        if self._nmt.state is not _OPERATIONAL:
+            return False
+        node = cob_id & 0x7F
+        if (cob_id & 0x780) in _SCANNED and node and node not in self._network.scanner.nodes:
+            return False
+        self.guard.accepted += 1
+        offset = port.offset
+        with self._lock:
+            self._pdo.receive(cob_id, memoryview(port.buffer)[offset : offset + port.length])
+        return True
 
     def stop(self) -> None:
         """Leave the bus: heartbeat, subscriptions and (own) notifier thread stop. The bus
@@ -464,22 +535,35 @@ class SimulatedDrive:
         """One SYNC: latch RPDOs, supervise, send TPDOs, run the physics one position cycle
         (what the drive does on a SYNC frame; callable directly in unit tests)."""
         with self._lock:
-            operational = self._nmt.state is NmtState.OPERATIONAL
-            self._rpdo_seen = False
-            if operational:
-                result = self._pdo.latch(before_apply=self._rpdo_arrived)
-                if result.short_frames:
-                    self._errors.set(EMCY_PDO_LENGTH, emcy_data_int32(result.short_frames[0]))
-                    for can_id in result.short_frames:
-                        self.guard.refuse(FrameFault.BAD_LENGTH, can_id, -1)
-            servo = self._servo
-            servo.hold_measurements()  # read after the last step (the first SYNC: now)
-            servo.supervise(self._rpdo_seen)
-            if operational:
-                self._pdo.transmit()
-            servo.advance()
-            self._sync_count += 1
-            self._heartbeat.tick(self._sync_count * self._cycle_us)
+            self._sync()
+
+    def _sync(self) -> None:
+        """:meth:`on_sync` with the lock held."""
+        operational = self._nmt.state is _OPERATIONAL
+        self._rpdo_seen = False
+        if operational and (applied := self._pdo.latch_quiet(self._unchanged)) is not None:
+            if applied:  # the set point a master repeats every SYNC: stored, no hook
+                self._rpdo_arrived()
+        elif operational:
+            result = self._pdo.latch(before_apply=self._rpdo_arrived)
+            if result.short_frames:
+                self._errors.set(EMCY_PDO_LENGTH, emcy_data_int32(result.short_frames[0]))
+                for can_id in result.short_frames:
+                    self.guard.refuse(FrameFault.BAD_LENGTH, can_id, -1)
+        servo = self._servo
+        servo.hold_measurements()  # read after the last step (the first SYNC: now)
+        servo.supervise(self._rpdo_seen)
+        if operational:
+            self._pdo.transmit()
+        servo.advance()
+        self._sync_count += 1
+        self._heartbeat.tick(self._sync_count * self._cycle_us)
+
+    def _unchanged(self, key: O.ObjectKey, value: int) -> bool:
+        """Whether writing ``value`` to ``key`` would do nothing beyond storing it: the
+        controlword the CiA 402 machine already has, with no transition
+        (:meth:`ServoAxis.controlword_unchanged`)."""
+        return key == O.CONTROLWORD and self._servo.controlword_unchanged(value)
 
     def _rpdo_arrived(self) -> None:
         self._rpdo_seen = True
@@ -505,6 +589,15 @@ class SimulatedDrive:
         """Send one frame the drive produces (TPDOs, a SYNC-time heartbeat): canopen's
         ``Network.send_message`` (same lock, same check of the notifier), with one
         :class:`can.Message` per COB-ID built once and rewritten, not one per frame."""
+        port = self.port
+        if port is not None:  # the loop's own frames, rewritten in place
+            frame = self._tx_frames.get(can_id)
+            if frame is None or frame.length != len(data):
+                frame = self._tx_frames[can_id] = port.frame(can_id, len(data))
+            offset = frame.offset
+            frame.buffer[offset : offset + frame.length] = data
+            port.send(frame)
+            return
         network = self._network
         bus = network.bus
         if bus is None:
@@ -552,7 +645,7 @@ class SimulatedDrive:
 
     def _on_rpdo_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._lock:
-            if self._nmt.state is NmtState.OPERATIONAL:
+            if self._nmt.state is _OPERATIONAL:
                 self._pdo.receive(can_id, bytes(data))
 
     def _nmt_state(self, old: NmtState, new: NmtState) -> None:

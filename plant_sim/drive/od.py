@@ -112,9 +112,12 @@ def saturate(value: int, low: int, high: int) -> int:
     return low if value < low else high if value > high else value
 
 
+_LINEAR = AxisKind.LINEAR  # a global: reading an Enum member off its class is slow (3.11)
+
+
 def load_units_per_unit(kind: AxisKind) -> float:
     """Integer units of 60E4h:01 / 2101h / 2104h per load unit: nm per m or µrad per rad."""
-    return LOAD_INCREMENTS_PER_M if kind is AxisKind.LINEAR else LOAD_INCREMENTS_PER_RAD
+    return LOAD_INCREMENTS_PER_M if kind is _LINEAR else LOAD_INCREMENTS_PER_RAD
 
 
 def motor_position_increments(theta_rad: float) -> int:
@@ -314,6 +317,9 @@ class ObjectTable:
         self._readers: dict[ObjectKey, ReadFn] = {}
         self._validators: dict[ObjectKey, ValidateFn] = {}
         self._changed: dict[ObjectKey, ChangedFn] = {}
+        #: the stored values by key, for reading them where every instruction counts (the
+        #: per-SYNC code); written only through write/store/set_default/restore_defaults
+        self.stored = self._values
         self.restore_defaults(0x0000, 0xFFFF)
 
     def variable(self, key: ObjectKey) -> ODVariable:
@@ -383,6 +389,20 @@ class ObjectTable:
         if not isinstance(packer, struct.Struct):
             return None
         return packer.format.lstrip("<>=!@")
+
+    def quiet(self, key: ObjectKey) -> bool:
+        """Whether a write of ``key`` is a range check and a store and nothing else (no
+        ``validate``, no ``changed`` hook)."""
+        return key not in self._validators and key not in self._changed
+
+    def limits(self, key: ObjectKey) -> tuple[int | None, int | None]:
+        """The EDS limits :meth:`check_range` applies to ``key`` (None: none)."""
+        var = self._vars[key]
+        return var.min, var.max
+
+    def changed_hook(self, key: ObjectKey) -> ChangedFn | None:
+        """The ``changed`` hook of ``key`` (None: none)."""
+        return self._changed.get(key)
 
     def check_range(self, key: ObjectKey, value: int) -> None:
         var = self._vars[key]

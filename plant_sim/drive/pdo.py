@@ -42,6 +42,7 @@ from virtual_bus.contract import COB_ID_EXTENDED as COB_ID_EXTENDED
 from virtual_bus.contract import COB_ID_INVALID as COB_ID_INVALID
 from virtual_bus.contract import COB_ID_NO_RTR as COB_ID_NO_RTR
 from virtual_bus.contract import SdoAbort, restricted_cob_id, split_mapping_entry
+from virtual_bus.framing import OutFrame
 
 from .errors import DriveSdoAbort
 from .od import (
@@ -96,6 +97,10 @@ class LatchResult:
     short_frames: list[int] = field(default_factory=list)  # CAN ids of too short RPDOs
 
 
+#: What a latch without pending RPDOs did (nothing; shared, never changed).
+_NOTHING_LATCHED = LatchResult()
+
+
 @dataclass
 class _Channel:
     kind: PdoKind
@@ -129,6 +134,88 @@ class _Plan:
     getters: tuple[Callable[[], int], ...]
     layout: struct.Struct | None  # None: encode object by object
     size: int  # bytes of the mapping
+    pack: Callable[[], bytes] | None = None  # the payload now (layout and getters; None: no layout)
+    #: RPDO: store its values when the latch only stores (see PdoEngine.latch_quiet)
+    quiet: Callable[[bytes, Callable[[ObjectKey, int], bool]], bool] | None = None
+    #: TPDO: pack into the loop's own frame and send it (PdoEngine.use_frames; None: bytes)
+    emit: Callable[[], None] | None = None
+
+
+def _quiet_writer(
+    table: ObjectTable, keys: tuple[ObjectKey, ...], layout: struct.Struct
+) -> Callable[[bytes, Callable[[ObjectKey, int], bool]], bool] | None:
+    """``write(data, unchanged)`` for a compiled RPDO of two objects (the usual set point
+    mapping): if both values are in their objects' range and each object has no hooks or
+    ``unchanged(key, value)``, store them and return True; else False, nothing stored. None
+    for other mappings (the general latch)."""
+    if len(keys) != 2:
+        return None
+    unpack = layout.unpack_from
+    k0, k1 = keys
+    (lo0, hi0), (lo1, hi1) = table.limits(k0), table.limits(k1)
+    plain0, plain1 = table.quiet(k0), table.quiet(k1)
+    store = table.store
+
+    def write(data: bytes, unchanged: Callable[[ObjectKey, int], bool]) -> bool:
+        v0, v1 = unpack(data)
+        if (lo0 is not None and v0 < lo0) or (hi0 is not None and v0 > hi0):
+            return False
+        if (lo1 is not None and v1 < lo1) or (hi1 is not None and v1 > hi1):
+            return False
+        if not (plain0 or unchanged(k0, v0)) or not (plain1 or unchanged(k1, v1)):
+            return False
+        store(k0, v0)
+        store(k1, v1)
+        return True
+
+    return write
+
+
+def _emitter(
+    layout: struct.Struct,
+    getters: tuple[Callable[[], int], ...],
+    frame: OutFrame,
+    send: Callable[[OutFrame], None],
+) -> Callable[[], None]:
+    """``emit()``: the PDO's values now packed straight into ``frame`` and ``frame`` sent
+    (the usual sizes without building a list or a bytes object)."""
+    pack_into = layout.pack_into
+    buffer, offset = frame.buffer, frame.offset
+    if len(getters) == 2:
+        g0, g1 = getters
+
+        def emit2() -> None:
+            pack_into(buffer, offset, g0(), g1())
+            send(frame)
+
+        return emit2
+    if len(getters) == 3:
+        g0, g1, g2 = getters
+
+        def emit3() -> None:
+            pack_into(buffer, offset, g0(), g1(), g2())
+            send(frame)
+
+        return emit3
+
+    def emit() -> None:
+        pack_into(buffer, offset, *[get() for get in getters])
+        send(frame)
+
+    return emit
+
+
+def _packer(layout: struct.Struct, getters: tuple[Callable[[], int], ...]) -> Callable[[], bytes]:
+    """The payload of a compiled PDO now: ``layout.pack`` of its getters' values (the usual
+    sizes without building a list)."""
+    pack = layout.pack
+    if len(getters) == 2:
+        g0, g1 = getters
+        return lambda: pack(g0(), g1())
+    if len(getters) == 3:
+        g0, g1, g2 = getters
+        return lambda: pack(g0(), g1(), g2())
+    return lambda: pack(*[get() for get in getters])
 
 
 class PdoEngine:
@@ -158,6 +245,9 @@ class PdoEngine:
         self._pending: dict[int, bytes] = {}  # RPDO number -> data received since last SYNC
         self._tx_plans: tuple[_Plan, ...] | None = None
         self._rx_plans: dict[int, _Plan] | None = None
+        # the loop's frames for TPDOs (use_frames): make one, send one
+        self._frame_for: Callable[[int, int], OutFrame] | None = None
+        self._send_frame: Callable[[OutFrame], None] | None = None
         for ch in self._rx + self._tx:
             table.on((ch.comm, 1), validate=self._cob_id_validator(ch), changed=self._changed(ch))
             table.on((ch.comm, 2), validate=self._type_validator(ch), changed=self._changed(ch))
@@ -346,15 +436,40 @@ class PdoEngine:
             layout = struct.Struct("<" + "".join(f for f in formats if f is not None))
             if layout.size * 8 != sum(m.bits for m in mapping):
                 layout = None
+        getters = tuple(self._table.getter(k) for k in keys)
+        can_id = self.can_id(ch)
+        transmission_type = self._table.value((ch.comm, 2))
+        emit = None
+        framed = self._frame_for is not None and self._send_frame is not None
+        if layout is not None and ch.kind is PdoKind.TRANSMIT and transmission_type and framed:
+            frame = self._frame_for(can_id, layout.size)  # type: ignore[misc]
+            emit = _emitter(layout, getters, frame, self._send_frame)  # type: ignore[arg-type]
         return _Plan(
             ch,
-            self.can_id(ch),
-            self._table.value((ch.comm, 2)),
+            can_id,
+            transmission_type,
             keys,
-            tuple(self._table.getter(k) for k in keys),
+            getters,
             layout,
             sum(m.bits for m in mapping) // 8,
+            None if layout is None else _packer(layout, getters),
+            None
+            if layout is None or ch.kind is not PdoKind.RECEIVE
+            else _quiet_writer(self._table, keys, layout),
+            emit,
         )
+
+    def use_frames(
+        self,
+        frame_for: Callable[[int, int], OutFrame] | None,
+        send_frame: Callable[[OutFrame], None] | None = None,
+    ) -> None:
+        """Send cyclic TPDOs (transmission types 1..240) as the loop's own preallocated frames
+        (``frame_for(cob_id, length)``, ``send_frame(frame)``: a FramePort's) packed in place,
+        from the next SYNC on; None: as bytes through ``send`` again."""
+        self._frame_for = frame_for
+        self._send_frame = send_frame
+        self._tx_plans = None
 
     def _compile(self) -> None:
         self._tx_plans = tuple(p for ch in self._tx if (p := self._plan(ch)) is not None)
@@ -408,10 +523,10 @@ class PdoEngine:
         (CiA 301: EMCY 0x8210, reported in the result); a longer one is used up to its
         mapped length. A value an object refuses is logged and skipped. ``before_apply`` is
         called before the objects of each accepted RPDO are written."""
+        if not self._pending:
+            return _NOTHING_LATCHED
         result = LatchResult()
         pending, self._pending = self._pending, {}
-        if not pending:
-            return result
         if self._rx_plans is None:
             self._compile()
         plans = self._rx_plans
@@ -443,6 +558,28 @@ class PdoEngine:
                     logger.warning("%s: %s", plan.channel.name, exc)
             result.applied += 1
         return result
+
+    def latch_quiet(self, unchanged: Callable[[ObjectKey, int], bool]) -> bool | None:
+        """The latch of a SYNC at which it only stores values: at most one RPDO pending, of a
+        compiled mapping and its full length, whose every value is in its object's range and
+        either goes to an object without hooks or is one ``unchanged(key, value)`` says its
+        hooks would do nothing with (the controlword a master repeats). Then the values are
+        stored, as :meth:`latch` would write them; True: an RPDO was applied, False: none was
+        pending. None: not such a SYNC, nothing done (use :meth:`latch`)."""
+        pending = self._pending
+        if not pending:
+            return False
+        plans = self._rx_plans
+        if len(pending) != 1 or plans is None:
+            return None
+        ((number, data),) = pending.items()
+        plan = plans.get(number)
+        if plan is None or plan.quiet is None or len(data) < plan.size:
+            return None
+        if not plan.quiet(data, unchanged):
+            return None
+        pending.clear()
+        return True
 
     def _decode_each(self, plan: _Plan, data: bytes) -> list[int]:
         values = []
@@ -480,12 +617,16 @@ class PdoEngine:
                 if ch.sync_count < plan.transmission_type:
                     continue
                 ch.sync_count = 0
+                if plan.emit is not None:
+                    plan.emit()
+                    sent += 1
+                    continue
                 data = self._plan_frame(plan)
             send(plan.can_id, data)
             sent += 1
         return sent
 
     def _plan_frame(self, plan: _Plan) -> bytes:
-        if plan.layout is not None:
-            return plan.layout.pack(*[get() for get in plan.getters])
+        if plan.pack is not None:
+            return plan.pack()
         return self.frame(plan.channel)

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import can
 
 from virtual_bus.formats.axis import AxisConfig
+from virtual_bus.framing import NOTHING
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 from .cia402 import State402
@@ -221,7 +222,7 @@ def serve(
             if gc_control is not None:
                 gc_control.start()
             try:
-                _loop(drive, bus.recv, handle, stop, config, gc_control, wall, epoch, counts)
+                _loop(drive, handle, stop, config, gc_control, wall, epoch, counts)
             finally:
                 if gc_control is not None:
                     gc_control.stop()
@@ -239,7 +240,6 @@ def serve(
 
 def _loop(
     drive: SimulatedDrive,
-    recv: Callable[[float | None], can.Message | None],
     handle: Callable[[can.Message], None],
     stop: threading.Event,
     config: DriveProcessConfig,
@@ -249,12 +249,17 @@ def _loop(
     counts: LoopCounts,
 ) -> None:
     """Receive and handle frames until ``stop``; see :func:`serve`. A receive error (a
-    datagram that is no CAN frame) is logged, counted in ``counts`` and skipped."""
+    datagram that is no CAN frame) is logged, counted in ``counts`` and skipped. Frames come
+    through the drive's port (:meth:`SimulatedDrive.receiving_here`: the bus's raw socket
+    where it has one), a SYNC or an RPDO is handed over without a message
+    (:meth:`SimulatedDrive.take`)."""
+    port = drive.port
+    assert port is not None, "the loop runs inside drive.receiving_here()"
+    take = drive.take
     interval = config.check_interval_s
     cycle_s = config.axis.control.position_cycle
     watch = SyncWatch(cycle_s, config.poll_lead_s, SYNC_HOLD_FRACTION * cycle_s)
     busy_poll = config.realtime.busy_poll
-    syncs = drive.sync_count
     next_check = wall() + interval
     while not stop.is_set():
         now = wall()
@@ -262,21 +267,21 @@ def _loop(
             drive.check()
             next_check = now + interval
         try:
-            msg = recv(watch.wait_s(now, interval) if busy_poll else interval)
+            cob_id = port.receive(watch.wait_s(now, interval) if busy_poll else interval)
+            if cob_id == NOTHING:
+                continue
+            received, received_epoch = wall(), epoch()
+            synced = take(cob_id, port, handle)
         except (can.CanError, OSError) as exc:  # e.g. a datagram that is no CAN frame
             counts.receive_errors += 1
             logger.warning("drive %d: receive failed, frame ignored: %s", drive.node_id, exc)
             continue
-        if msg is None:
-            continue
-        received = wall()
-        # the frame's own timestamp (epoch s: the kernel's receive time on udp_multicast and
-        # socketcan) says how long it waited for this thread; a plausible age dates the SYNC
-        # back to its arrival, so a late wake-up does not shift the next poll window
-        age = epoch() - msg.timestamp
-        handle(msg)
-        if drive.sync_count != syncs:  # a SYNC: answered, the physics stepped
-            syncs = drive.sync_count
+        if synced:  # a SYNC: answered, the physics stepped
+            # the frame's own timestamp (epoch s: the kernel's receive time where the port
+            # has it, python-can's messages) says how long it waited for this thread; a
+            # plausible age dates the SYNC back to its arrival, so a late wake-up does not
+            # shift the next window (a raw socket's port: the time it was read, age <= 0)
+            age = received_epoch - port.timestamp
             watch.synced(received - age if 0.0 <= age < cycle_s else received)
             if gc_control is not None and gc_control.due():
                 gc_control.collect()

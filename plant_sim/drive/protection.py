@@ -70,6 +70,9 @@ class ErrorList:
     def __init__(self, send_emcy: EmcySender) -> None:
         self._send = send_emcy
         self._active: list[int] = []
+        #: the active codes, oldest first (read it, change it through set/clear/forget): an
+        #: empty list is false, for the per-SYNC code without a call
+        self.codes = self._active
 
     @property
     def active(self) -> tuple[int, ...]:

@@ -26,6 +26,8 @@ from __future__ import annotations
 import logging
 import math
 
+import numpy as np
+
 from virtual_bus.contract import SdoAbort
 from virtual_bus.formats.axis import AxisConfig, AxisKind
 
@@ -70,6 +72,10 @@ _POWERED = (
     S.FAULT_REACTION_ACTIVE,
 )
 _DRIVING = (S.OPERATION_ENABLED, S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE)
+# Enum members the per-SYNC code compares with, as module globals: CPython 3.11's EnumType has
+# a __getattr__, so reading a member off its class costs ~1,000 instructions, a global ~50
+# (callgrind).
+_ENABLED, _FAULTED = S.OPERATION_ENABLED, (S.FAULT_REACTION_ACTIVE, S.FAULT)
 QUICK_STOP_CODES = (0, 1, 2, 5, 6)  # 605Ah values the drive implements
 _FRACTION_AT_LIMIT = 0.999  # |torque| >= this * limit sets statusword bit 11
 
@@ -114,11 +120,19 @@ class ServoAxis:
         self._last_setpoint_rad_s = 0.0  # for the acceleration feed-forward
         self._fault_codes: set[int] = set()
         #: the plant's readings since its last step (hold_measurements)
-        self._held: tuple[float, float, float, float] | None = None
+        self._held: list[float] | None = None
+        self._readings = np.zeros(4)
         self._axis_limit_nm = axis_torque_limit_nm(plant)  # the axis file's, fixed
+        self._ratio = plant.axis.transmission_ratio
+        self._jff = axis.control.acceleration_feedforward or 0.0  # kg m^2
+        self._step = plant.stepper()  # plant.advance for floats
+        self._cycle_s = axis.control.position_cycle
         self._word_state: State402 | None = None  # statusword(): state of _state_word
         self._state_word = 0
+        self._limit_for: int | None = None  # torque_limit_nm(): the 6072h it was made for
+        self._limit_nm = math.inf
         self._set_axis_defaults()
+        self._rated_mnm = table.value(O.RATED_TORQUE)  # 6076h, read-only
         self._attach_objects()
         self.apply_torque_limit()
 
@@ -153,14 +167,24 @@ class ServoAxis:
         t.on(O.ERROR_CODE, read=lambda: self._errors.error_code)
         t.on(O.STATUSWORD, read=self.statusword)
         t.on(O.MODES_OF_OPERATION_DISPLAY, read=lambda: t.value(O.MODES_OF_OPERATION))
-        # measured(): motor position (rad), load position, motor speed (rad/s), torque (N·m)
-        t.on(O.POSITION_ACTUAL, read=lambda: O.motor_position_increments(measured()[0]))
-        t.on(O.VELOCITY_ACTUAL, read=lambda: O.motor_speed_increments_s(measured()[2]))
+        # measured(): motor position (rad), load position, motor speed (rad/s), torque (N·m);
+        # the readings held since the last step without the call where they are (every SYNC)
+        t.on(
+            O.POSITION_ACTUAL,
+            read=lambda: O.motor_position_increments((self._held or measured())[0]),
+        )
+        t.on(
+            O.VELOCITY_ACTUAL,
+            read=lambda: O.motor_speed_increments_s((self._held or measured())[2]),
+        )
         t.on(
             O.TORQUE_ACTUAL,
-            read=lambda: O.torque_permille(measured()[3], t.value(O.RATED_TORQUE)),
+            read=lambda: O.torque_permille((self._held or measured())[3], self._rated_mnm),
         )
-        t.on(O.LOAD_POSITION_ACTUAL, read=lambda: O.load_position_units(measured()[1], kind))
+        t.on(
+            O.LOAD_POSITION_ACTUAL,
+            read=lambda: O.load_position_units((self._held or measured())[1], kind),
+        )
         t.on(
             O.LOAD_MINUS_MOTOR,
             read=lambda: O.load_difference_units(discrepancy(*measured()[:2], ratio), kind),
@@ -188,11 +212,12 @@ class ServoAxis:
             )
 
     # --- measurements --------------------------------------------------------------------------
-    def _read_plant(self) -> tuple[float, float, float, float]:
-        p = self.plant
-        return (p.motor_position_rad, p.load_position, p.motor_speed_rad_s, p.motor_torque_nm)
+    def _read_plant(self) -> list[float]:
+        readings = self._readings
+        self.plant.read_measured(readings)  # the properties' values, in one compiled call
+        return readings.tolist()  # type: ignore[no-any-return]
 
-    def _measured(self) -> tuple[float, float, float, float]:
+    def _measured(self) -> list[float]:
         """Motor position (rad), load position (load units), motor speed (rad/s), torque
         (N·m) of the plant as it stands (see :meth:`hold_measurements`)."""
         held = self._held
@@ -214,12 +239,15 @@ class ServoAxis:
 
     @property
     def torque_limit_nm(self) -> float:
-        """The torque limit in force: min(axis file limit, 6072h · 6076h)."""
-        t = self._table
-        return min(
-            self._axis_limit_nm,
-            O.torque_limit_nm(t.value(O.MAX_TORQUE), t.value(O.RATED_TORQUE)),
-        )
+        """The torque limit in force: min(axis file limit, 6072h · 6076h); 6076h is read-only
+        (its value from the drive configuration), kept from the last 6072h read."""
+        max_torque = self._table.stored[O.MAX_TORQUE]
+        if max_torque != self._limit_for:
+            self._limit_for = max_torque
+            self._limit_nm = min(
+                self._axis_limit_nm, O.torque_limit_nm(max_torque, self._rated_mnm)
+            )
+        return self._limit_nm
 
     def apply_torque_limit(self) -> None:
         apply_torque_limit(self.plant, self.torque_limit_nm)
@@ -233,10 +261,10 @@ class ServoAxis:
             self._word_state, self._state_word = state, _state_word(state)
         word = self._state_word
         if state in _DRIVING and (
-            abs(self._measured()[3]) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
+            abs((self._held or self._measured())[3]) >= _FRACTION_AT_LIMIT * self.torque_limit_nm
         ):
             word |= SW_INTERNAL_LIMIT
-        if self._errors.any_active and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
+        if self._errors.codes and state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
             word |= SW_WARNING
         return word
 
@@ -257,21 +285,21 @@ class ServoAxis:
     # --- per SYNC ------------------------------------------------------------------------------
     def rpdo_arrived(self) -> None:
         """A complete RPDO is being applied at this SYNC: the set point is back."""
-        self._errors.clear(EMCY_RPDO_TIMEOUT)
-        self._errors.clear(EMCY_PDO_LENGTH)
+        if self._errors.codes:
+            self._errors.clear(EMCY_RPDO_TIMEOUT)
+            self._errors.clear(EMCY_PDO_LENGTH)
 
     def supervise(self, rpdo_received: bool) -> None:
         """After the RPDO latch, before the TPDOs: watchdog, encoders, end of the ramps."""
         t = self._table
-        if self.sm.state is S.OPERATION_ENABLED:
-            if self.watchdog.on_sync(rpdo_received, t.value(O.SETPOINT_TIMEOUT)):
-                self._setpoint_timeout()
-        else:
-            self.watchdog.reset()
-        if self.sm.state not in (S.FAULT_REACTION_ACTIVE, S.FAULT) and not self._encoder_ok():
+        state = self.sm.state
+        if state is not _ENABLED or rpdo_received:
+            self.watchdog.reset()  # what on_sync does with an RPDO received
+        elif self.watchdog.on_sync(False, t.value(O.SETPOINT_TIMEOUT)):
+            self._setpoint_timeout()
+        if self.sm.state not in _FAULTED and not self._encoder_ok():
             self._fault(EMCY_SENSOR, emcy_data_int32(t.read(O.LOAD_MINUS_MOTOR)))
-        standstill = abs(self._measured()[2]) <= self.config.standstill_rad_s
-        if self._ramp_done and standstill:
+        if self._ramp_done and abs(self._measured()[2]) <= self.config.standstill_rad_s:
             if self.sm.state is S.QUICK_STOP_ACTIVE and t.value(O.QUICK_STOP_OPTION) in (1, 2):
                 self._take(self.sm.event(Event.QUICK_STOP_COMPLETED))
             elif self.sm.state is S.FAULT_REACTION_ACTIVE:
@@ -281,20 +309,21 @@ class ServoAxis:
         """Run the plant one position cycle as the state says (see the module docstring),
         then read its measuring systems for the next SYNC (:meth:`hold_measurements`)."""
         self._held = None
-        self._step_plant()
-        self._held = self._read_plant()
+        coasting = self._step_plant()
+        self._held = held = self._read_plant()
+        if coasting:  # the speed loop follows from where the axis is when it takes over
+            self._last_setpoint_rad_s = held[2]
 
-    def _step_plant(self) -> None:
+    def _step_plant(self) -> bool:
+        """One position cycle of the plant; True when the power stage is off (coasting)."""
         p, t = self.plant, self._table
-        disturbance_nm = t.value(O.DISTURBANCE) / 1000.0
+        stored = t.stored
+        disturbance_nm = stored[O.DISTURBANCE] / 1000.0
         state = self.sm.state
-        if state is S.OPERATION_ENABLED:
-            speed = O.increments_to_rad(t.value(O.TARGET_VELOCITY))
-            p.advance(
-                speed_setpoint_rad_s=speed,
-                disturbance_nm=disturbance_nm,
-                torque_feedforward_nm=self._torque_feedforward_nm(speed),
-            )
+        if state is _ENABLED:
+            speed = O.increments_to_rad(stored[O.TARGET_VELOCITY])
+            self._step(speed, disturbance_nm, self._torque_feedforward_nm(speed))  # floats
+            return False
         elif state in (S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE):
             if state is S.QUICK_STOP_ACTIVE:
                 slow = t.value(O.QUICK_STOP_OPTION) in (1, 5)
@@ -312,22 +341,22 @@ class ServoAxis:
                 torque_feedforward_nm=self._torque_feedforward_nm(self._ramp_rad_s),
             )
             self._ramp_done = self._ramp_rad_s == 0.0
-        else:
-            p.advance_torque(0.0, disturbance_nm)
-            self._last_setpoint_rad_s = p.motor_speed_rad_s
+            return False
+        p.advance_torque(0.0, disturbance_nm)
+        return True
 
     def _torque_feedforward_nm(self, setpoint_rad_s: float) -> float:
         """J_ff times the speed set point's change over the last position cycle (N·m)."""
-        inertia = self.axis.control.acceleration_feedforward or 0.0
         change = setpoint_rad_s - self._last_setpoint_rad_s
         self._last_setpoint_rad_s = setpoint_rad_s
-        return inertia * change / self.axis.control.position_cycle
+        return self._jff * change / self._cycle_s
 
     # --- protection ----------------------------------------------------------------------------
     def _encoder_ok(self) -> bool:
-        """Paper section II.B: |load scale − motor encoder| within 2101h."""
-        difference = abs(self._table.read(O.LOAD_MINUS_MOTOR))
-        return difference <= self._table.value(O.ENCODER_TOLERANCE)
+        """Paper section II.B: |load scale − motor encoder| within 2101h (2104h's value)."""
+        held = self._held or self._measured()
+        units = O.load_difference_units(discrepancy(held[0], held[1], self._ratio), self.axis.kind)
+        return abs(units) <= self._table.stored[O.ENCODER_TOLERANCE]
 
     def _setpoint_timeout(self) -> None:
         """No RPDO for 2102h SYNCs: EMCY 0x8250 naming the cause (:func:`setpoint_timeout_data`)
@@ -357,7 +386,16 @@ class ServoAxis:
         return True
 
     # --- state machine glue --------------------------------------------------------------------
+    def controlword_unchanged(self, controlword: int) -> bool:
+        """Writing ``controlword`` to 6040h changes nothing (the hook below returns at once):
+        a master repeats it with every set point."""
+        return self._table.changed_hook(O.CONTROLWORD) == self._controlword_changed and (
+            self.sm.unchanged_by(controlword)
+        )
+
     def _controlword_changed(self, controlword: int) -> None:
+        if self.sm.unchanged_by(controlword):  # the RPDO repeats it every SYNC
+            return
         transitions = self.sm.controlword_written(
             controlword,
             quick_stop_stays=self._table.value(O.QUICK_STOP_OPTION) >= 5,
@@ -374,7 +412,7 @@ class ServoAxis:
             if tr.target is S.OPERATION_ENABLED:
                 self.watchdog.reset()
             elif tr.target in (S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE):
-                self._ramp_rad_s = self.plant.motor_speed_rad_s
+                self._ramp_rad_s = self._measured()[2]  # the plant's speed now
                 self._ramp_done = False
                 if tr.target is S.QUICK_STOP_ACTIVE:
                     immediate = self._table.value(O.QUICK_STOP_OPTION) == 0

@@ -432,6 +432,17 @@ def advance(
 
 
 @_njit
+def read_measured(p: np.ndarray, st: np.ndarray, out: np.ndarray) -> None:
+    """What the drive's measuring systems read now, in one call: ``out`` = motor encoder
+    (:func:`motor_measured`), load measuring system (:func:`load_measured`), speed actual
+    value (:func:`motor_speed_measured`), motor torque (rad, load units, rad/s, N·m)."""
+    out[0] = motor_measured(p, st)
+    out[1] = load_measured(p, st)
+    out[2] = motor_speed_measured(p, st)
+    out[3] = st[S_TAU]
+
+
+@_njit
 def advance_torque(p: np.ndarray, st: np.ndarray, torque_nm: float, disturbance_nm: float) -> None:
     """One position cycle with the speed controller bypassed: a fixed torque set point (N·m)
     through the current loop (0 for a disabled drive: the axis coasts). The speed is still

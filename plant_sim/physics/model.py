@@ -8,7 +8,9 @@ simulator's closed loop (:mod:`plant_sim.physics.simulate`) and the bridge (over
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -218,6 +220,11 @@ class AxisPlant:
             float(torque_feedforward_nm),
         )
 
+    def stepper(self) -> Callable[[float, float, float], None]:
+        """:meth:`advance` for a caller that passes floats every position cycle (a drive):
+        the compiled step itself, bound to this plant, without the conversions."""
+        return functools.partial(K.advance, self._p, self._st)
+
     def advance_torque(self, torque_nm: float, disturbance_nm: float = 0.0) -> None:
         """Run one position cycle with the speed loop bypassed at a fixed torque set point
         (0 N·m: power stage off, the axis coasts); clears the speed controller's integral."""
@@ -263,6 +270,12 @@ class AxisPlant:
     @property
     def motor_torque_nm(self) -> float:
         return float(self._st[K.S_TAU])
+
+    def read_measured(self, out: np.ndarray) -> None:
+        """:attr:`motor_position_rad`, :attr:`load_position`, :attr:`motor_speed_rad_s` and
+        :attr:`motor_torque_nm` into ``out`` (float64, 4 elements) in one compiled call (a
+        drive reads them after every step)."""
+        K.read_measured(self._p, self._st, out)
 
     @property
     def position_cycle_s(self) -> float:

@@ -242,7 +242,7 @@ def test_locked_parameters_and_commands_follow_the_state() -> None:
     assert c.params.beta_t_rad_s != 0.5
     c.command(Command.DISABLE)
     c.set_params(new)
-    assert c.regulator.config.beta_t_rad_s == 0.5
+    assert c.regulator_config.beta_t_rad_s == 0.5
     with pytest.raises(ParameterError):
         c.start_move(Move(0.1, 0.05))  # not running
     with pytest.raises(ParameterError):

@@ -140,7 +140,7 @@ def test_valid_writes_take_effect(bridge: Bridge, tool: canopen.RemoteNode) -> N
     tool.sdo.download(objdict.TV, 0, struct.pack("<f", 2.0))
     tool.sdo.download(objdict.REG_ENABLE, 0, b"\x00")
     tool.sdo.download(objdict.CYCLE_PERIOD, 0, struct.pack("<I", 500))
-    reg = c.regulator.config
+    reg = c.regulator_config
     assert (reg.kv, reg.beta_t_rad_s, reg.tv_s, reg.enabled, reg.cycle_s) == (
         30.0,
         0.5,
@@ -148,9 +148,9 @@ def test_valid_writes_take_effect(bridge: Bridge, tool: canopen.RemoteNode) -> N
         False,
         0.0005,
     )
-    assert c.position_controller.kv_per_s == 30.0
+    assert c.params.kv_per_s == 30.0
     tool.sdo.download(objdict.TV, 0, struct.pack("<f", 0.0))  # 0: eq. 14 default
-    assert c.regulator.config.tv_s is None
+    assert c.regulator_config.tv_s is None
     tool.sdo.download(objdict.HEARTBEAT_CONSUMER, 1, struct.pack("<I", (2 << 16) | 400))
     assert c.params.heartbeat_consumer_ms == 400
     tool.sdo.download(objdict.FEED, 0, struct.pack("<I", 20_000_000))  # 20 mm/s in nm/s

@@ -17,6 +17,7 @@ import can
 import pytest
 
 from bridge.cycle import BridgeState, StopReason
+from bridge.cyclecore import Functions
 from bridge.layout import RPDO1_STRUCT, SYNC_COB_ID, TPDO1_STRUCT, TPDO2_STRUCT
 from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
@@ -57,6 +58,8 @@ class ScriptedBus:
         self.fail_send: set[int] = set()  # RPDO numbers whose send raises
         self.answer_s = 50e-6  # the drive's answer after SYNC
         self.flood = 0  # a tool floods the bus: this many frames, one always waiting
+        self.work_after_rpdo: dict[int, float] = {}  # cycle -> the loop computes this long, s
+        self.off_cpu = 0.0  # time the loop's thread did not run: stalls and sleeps, s
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if msg.arbitration_id == SYNC_COB_ID:
@@ -73,7 +76,9 @@ class ScriptedBus:
                 self.rpdos.append((-1, -1))
                 raise can.CanOperationError("transmit buffer full")
             self.rpdos.append(RPDO1_STRUCT.unpack(msg.data))
-            self.clock.t += 20e-6 + self.stall_after_rpdo.get(n, 0.0)
+            stall = self.stall_after_rpdo.get(n, 0.0)
+            self.clock.t += 20e-6 + stall + self.work_after_rpdo.get(n, 0.0)
+            self.off_cpu += stall
 
     @staticmethod
     def _frame(can_id: int, data: bytes) -> can.Message:
@@ -86,9 +91,14 @@ class ScriptedBus:
             self.flood -= 1
             self.clock.t += 2e-6
             return self._frame(0x601, bytes(8))
-        self.clock.t += self.stall_in_wait.pop(len(self.sync_times), 0.0)
-        self.clock.t += max(timeout or 0.0, 1e-6)
+        stall = self.stall_in_wait.pop(len(self.sync_times), 0.0) + max(timeout or 0.0, 1e-6)
+        self.clock.t += stall
+        self.off_cpu += stall
         return None
+
+    def cpu(self) -> float:
+        """The loop thread's CPU clock: the wall clock less the time it did not run."""
+        return self.clock.t - self.off_cpu
 
 
 def make_bridge(
@@ -103,6 +113,7 @@ def make_bridge(
         keep_timing=True,
         wall=clock,
         overrun_limit=overrun_limit,
+        cpu=bus.cpu,
     )
     bridge.start(configure_drive=False)
     return bridge
@@ -138,6 +149,24 @@ def test_a_late_loop_skips_slots_and_never_bunches_syncs() -> None:
     timing = bridge.timing
     assert timing.skipped_syncs == 2 and timing.overruns == 1
     assert bridge.controller.state is BridgeState.RUNNING  # one overrun: counted only
+
+
+@pytest.mark.parametrize("host", [True, False], ids=["host-stall", "own-work"])
+def test_a_skipped_slot_is_the_hosts_or_the_loops_own(host: bool) -> None:
+    """The same 2.5 cycles after cycle 5: the loop parked (off the CPU: the host's) or
+    computing (its own work, on the CPU); and a late wake-up while waiting is the host's."""
+    clock = Clock()
+    bus = ScriptedBus(clock)
+    (bus.stall_after_rpdo if host else bus.work_after_rpdo)[5] = 2.5 * CYCLE_S
+    bus.stall_in_wait[12] = 0.5 * CYCLE_S  # woken half a cycle late before SYNC 12
+    bridge = make_bridge(clock, bus, overrun_limit=None)
+    bridge.run(cycles=20)
+    timing = bridge.timing
+    assert timing.skipped_syncs == 3 and timing.overruns == 2
+    assert (timing.own_skipped, timing.host_skipped) == ((0, 3) if host else (2, 1))
+    assert (timing.own_overruns, timing.host_overruns) == ((0, 2) if host else (1, 1))
+    own = timing.work_cpu_s[:5]
+    assert 0.0 < own.max() < 0.1 * CYCLE_S  # the loop's own work is short on this bus
 
 
 def test_preempted_while_waiting_the_slot_is_skipped_not_sent_late() -> None:
@@ -206,15 +235,13 @@ def test_a_failing_controller_step_stops_the_axis() -> None:
     bus = ScriptedBus(clock)
     bridge = make_bridge(clock, bus)
     bridge.run(cycles=3)
-    original = bridge.controller.regulator.step
+    c = bridge.controller
 
-    def failing(*args: float) -> float:
+    def failing(*args: object) -> tuple[int, int]:
         raise ZeroDivisionError("bug")
 
-    bridge.controller.regulator.step = failing  # type: ignore[method-assign]
+    c.core = Functions(c.core.measure, failing, failing, compiled=False)
     bridge.run(cycles=2)
-    bridge.controller.regulator.step = original  # type: ignore[method-assign]
-    c = bridge.controller
     assert c.stop_reason is StopReason.INTERNAL_ERROR and "bug" in c.stop_message
     assert bus.rpdos[-1] == (0x0002, 0)
 

@@ -59,7 +59,7 @@ def test_store_restart_and_read_back(
         assert sdo["Regulator enable"].raw is False
         p = restarted.controller.params
         assert (p.kv_per_s, p.regulator_enabled, p.heartbeat_consumer_ms) == (30.0, False, 400)
-        assert restarted.controller.regulator.config.kv == 30.0  # the regulator uses it
+        assert restarted.controller.regulator_config.kv == 30.0  # the regulator uses it
         # restore defaults: effective at the next start, not now
         sdo[0x1011][1].raw = LOAD
         assert sdo["Position gain kv"].raw == 30.0

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import struct
 
+import can
 import pytest
 from canopen.sdo import SdoAbortedError
 
@@ -15,6 +16,7 @@ from plant_sim.drive.rig import Rig, virtual_rig
 from plant_sim.physics.model import AxisPlant
 from tests.paths import ROOT
 from virtual_bus.formats.axis import AxisConfig, load_axis
+from virtual_bus.frame_guard import FrameFault
 
 REPO = ROOT
 TPDO1, TPDO2, TPDO3, TPDO4 = 0x182, 0x282, 0x382, 0x482
@@ -298,3 +300,66 @@ def test_polled_drive_answers_only_when_polled_and_resumes_its_thread(axis: Axis
             assert poll() == 0
         assert set(probe.sync_and_collect([TPDO1, TPDO2])) == {TPDO1, TPDO2}
         assert rig.drive.sync_count == cycles + 2
+
+
+class _Watcher(can.Listener):
+    """A second listener on the drive's network: every frame then takes canopen's way."""
+
+    def __init__(self) -> None:
+        self.seen = 0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.seen += 1
+
+
+def _scripted(axis: AxisConfig, second_listener: bool) -> tuple[object, ...]:
+    """TPDOs and EMCYs of a scripted run through polled(), the guard's counts, SYNCs run."""
+    with virtual_rig(axis) as rig:
+        probe, drive = rig.probe, rig.drive
+        watcher = _Watcher()
+        if second_listener:
+            drive.network.listeners.append(watcher)
+        got: list[tuple[int, bytes]] = []
+        with drive.polled() as poll:
+
+            def answer() -> None:
+                poll()
+                got.extend((m.arbitration_id, bytes(m.data)) for m in probe.drain())
+
+            probe.setpoint(0x06, 5000)  # Pre-operational: refused, counted
+            probe.sync()
+            answer()
+            probe.nmt(NmtCommand.START)
+            answer()
+            for cw, speed in ((0x06, 0), (0x0F, 0), (0x0F, 20000), (0x0F, 20000), (0x0F, -300)):
+                probe.setpoint(cw, speed)
+                probe.sync()
+                answer()
+            probe.rpdo(1, struct.pack("<Hh", 0x0F, 1000))  # too short: EMCY 8210
+            probe.sync()
+            answer()
+            probe.send(0x080, b"\x01\x02")  # a SYNC with data: EMCY 8240
+            answer()
+            probe.sync()
+            answer()
+        return got, drive.guard.accepted, dict(drive.guard.counts), drive.sync_count, watcher.seen
+
+
+def test_sync_and_rpdo_straight_to_the_drive_do_what_canopens_dispatch_does(
+    axis: AxisConfig,
+) -> None:
+    """SimulatedDrive.take hands a SYNC and an RPDO to the drive without a message when only
+    the drive listens; with a second listener the same frames go through the frame guard and
+    canopen's Network.notify. Both: the same TPDOs and EMCYs, the same counts of the guard
+    (an RPDO outside Operational refused as not in state, a short RPDO, a SYNC with data)."""
+    direct = _scripted(axis, second_listener=False)
+    dispatched = _scripted(axis, second_listener=True)
+    assert direct[-1] == 0 and dispatched[-1] > 0
+    assert direct[:-1] == dispatched[:-1]
+    got, accepted, counts, syncs = direct[:-1]
+    tpdo2s = [f for f in got if f[0] == TPDO2]  # type: ignore[union-attr]
+    emcys = {f[1][:2] for f in got if f[0] == EMCY}  # type: ignore[union-attr, index]
+    assert syncs == 8 and len(tpdo2s) == 7  # none in Pre-operational
+    assert emcys >= {b"\x10\x82", b"\x40\x82"} and accepted > 8  # type: ignore[operator]
+    assert counts[FrameFault.NOT_IN_STATE] == 1  # type: ignore[index]
+    assert counts[FrameFault.BAD_LENGTH] == 2  # type: ignore[index]

@@ -25,6 +25,7 @@ from tests.command_line import refused_in_one_line
 from tests.paths import ROOT
 from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.formats.axis import load_axis
+from virtual_bus.framing import MessagePort
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
 from virtual_bus.realtime import RealTimeOptions
 
@@ -352,26 +353,34 @@ def test_the_next_window_is_dated_from_the_syncs_arrival_not_from_a_late_wake_up
     clock, stop, asked = _Clock(), threading.Event(), []
     sync = can.Message(arbitration_id=0x80, data=b"", timestamp=1000.0 - 300e-6)
 
+    class Bus:  # the drive's end of the bus, as its port reads it
+        def recv(self, timeout: float | None) -> can.Message | None:
+            asked.append(timeout)
+            if len(asked) == 1:
+                return sync
+            stop.set()
+            return None
+
     class Drive:  # what the loop reads of the drive
         node_id, sync_count = 2, 0
+        port = MessagePort(Bus())  # type: ignore[arg-type]
 
         def check(self) -> None:
             pass
+
+        def take(
+            self, cob_id: int, port: MessagePort, handle: Callable[[can.Message], None]
+        ) -> bool:
+            handle(port.message())
+            return True
 
     drive = Drive()
 
     def handle(msg: can.Message) -> None:
         drive.sync_count += 1
 
-    def recv(timeout: float | None) -> can.Message | None:
-        asked.append(timeout)
-        if len(asked) == 1:
-            return sync
-        stop.set()
-        return None
-
     config = DriveProcessConfig(load_axis(AXIS_FILE), realtime=RealTimeOptions(busy_poll=True))
-    _loop(drive, recv, handle, stop, config, None, clock, lambda: 1000.0, LoopCounts())  # type: ignore[arg-type]
+    _loop(drive, handle, stop, config, None, clock, lambda: 1000.0, LoopCounts())  # type: ignore[arg-type]
     assert asked[0] == config.check_interval_s  # nothing known yet: block
     assert asked[1] == pytest.approx(10.0 - 300e-6 + 1e-3 - 150e-6 - 10.0)
 
