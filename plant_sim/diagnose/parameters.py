@@ -109,14 +109,19 @@ def speed_loop_bandwidth(axis: AxisConfig) -> float:
 
 def max_antiresonance(axis: AxisConfig, max_substeps: int = 5) -> float:
     """Largest ω_a fitted: the resonance ω_r = ω_a·√(1+R) must keep ω_r·dt <= MAX_OMEGA_DT
-    with at most ``max_substeps`` mechanics substeps per speed cycle (cost of a simulation)."""
-    r = axis.load_inertia_reflected / axis.motor_side_inertia
+    with at most ``max_substeps`` mechanics substeps per speed cycle (cost of a simulation).
+    0 for a lumped rigid model (no motor-side inertia: no elastic element can be added; the
+    axis-file rules need motor_inertia + screw_inertia > 0 with an antiresonance)."""
+    if not axis.motor_side_inertia > 0.0:
+        return 0.0
+    r = axis.inertia_ratio
     return max_substeps * MAX_OMEGA_DT / axis.control.speed_cycle / math.sqrt(1.0 + r)
 
 
 def contact_antiresonance(axis: AxisConfig) -> float:
     """ω_a of the stiff contact added with backlash to a rigid model: ten times the speed
-    loop's bandwidth, at most what 3 substeps per speed cycle integrate."""
+    loop's bandwidth, at most what 3 substeps per speed cycle integrate (0: none possible,
+    a lumped rigid model)."""
     return min(10.0 * speed_loop_bandwidth(axis), 0.99 * max_antiresonance(axis, 3))
 
 
@@ -126,10 +131,9 @@ CONTACT_DAMPING = 0.1
 
 def options_for(axis_max_wa: float | None, axis: AxisConfig) -> KernelOptions:
     """Kernel substeps fixed for a whole fit, from the largest ω_a it may visit."""
-    if axis_max_wa is None:
+    if axis_max_wa is None or not axis.motor_side_inertia > 0.0:
         return KernelOptions(substeps=1)
-    r = axis.load_inertia_reflected / axis.motor_side_inertia
-    wr = axis_max_wa * math.sqrt(1.0 + r)
+    wr = axis_max_wa * math.sqrt(1.0 + axis.inertia_ratio)
     return KernelOptions(substeps=max(1, math.ceil(wr * axis.control.speed_cycle / MAX_OMEGA_DT)))
 
 
