@@ -22,7 +22,8 @@ viscous_friction           ẋ                                           viscous
 asymmetric_friction        −[ẋ<0], ẋ·[ẋ<0]                              Δ coulomb/viscous (−)
 stribeck_friction          sign(ẋ)·exp(−(ẋ/v_s)²), scan of v_s          stribeck
 constant_load_torque       1                                           constant_torque
-periodic_disturbance       sin(2πx/P), cos(2πx/P), scan of P           A·cos φ, A·sin φ
+periodic_disturbance       sin(2πx/P), cos(2πx/P), P from the         A·cos φ, A·sin φ
+                           residual's spectrum over position
 compliance (one system)    −x⁗/k_r                                     M/ω_a²
 =========================  =========================================  ====================
 
@@ -52,19 +53,19 @@ COMPLIANCE_KEY = "mechanics.load_mass/antiresonance^2"
 #: Candidate keys of asymmetric friction: the negative direction's friction minus the model's.
 DELTA_COULOMB_NEG = "friction.coulomb_negative-coulomb"
 DELTA_VISCOUS_NEG = "friction.viscous_negative-viscous"
-#: Points of the Stribeck-speed scan and of the period scan.
+#: Points of the Stribeck-speed scan.
 STRIBECK_POINTS = 12
-PERIOD_POINTS = 48
 
 
 @dataclass(frozen=True)
 class Scans:
     """The non-linear parameters scanned, chosen from the recording (so that the recording
-    and every replay are tested on the same grid)."""
+    and every replay are tested on the same grid): Stribeck speeds, and the band of periods
+    a position-periodic torque is looked for in."""
 
     speed_max: float
     stribeck_speeds: tuple[float, ...]
-    periods: tuple[float, ...]
+    period_band: tuple[float, float] | None
 
 
 def scans_for(rec: Measured) -> Scans:
@@ -77,14 +78,54 @@ def scans_for(rec: Measured) -> Scans:
     strb = tuple(np.geomspace(4.0 * v_lo, 0.3 * vmax, STRIBECK_POINTS))
     moving = np.abs(rec.speed) > 0.05 * vmax
     span = float(np.ptp(rec.load_position))
-    periods: tuple[float, ...] = ()
+    band = None
     if moving.sum() > 50 and span > 0.0:
         v_typ = float(np.median(np.abs(rec.speed[moving])))
         p_lo = max(8.0 * v_typ * rec.dt, span / 2000.0)
         p_hi = span / 2.0
         if p_hi > 1.5 * p_lo:
-            periods = tuple(np.geomspace(p_lo, p_hi, PERIOD_POINTS))
-    return Scans(vmax, strb, periods)
+            band = (p_lo, p_hi)
+    return Scans(vmax, strb, band)
+
+
+@dataclass(frozen=True)
+class PeriodChoice:
+    """The period a position-periodic torque is tested at, and the number of independent
+    periods the choice was made among (the test's p is multiplied by it: Bonferroni)."""
+
+    period: float
+    looked_at: float
+
+
+def choose_period(
+    m: Measured, residual: np.ndarray, rows: np.ndarray, band: tuple[float, float]
+) -> PeriodChoice | None:
+    """The largest peak in ``band`` of the residual's spectrum over position: the moving rows'
+    residual averaged in position bins a quarter of the shortest period wide, the binned
+    profile's FFT (zero-padded four times). Independent periods in the band: the unpadded
+    FFT's frequencies there, span/p_lo − span/p_hi."""
+    x, r = m.load_position[rows], residual[rows]
+    if len(x) < 50:
+        return None
+    r = r - float(np.mean(r))
+    p_lo, p_hi = band
+    width = p_lo / 4.0
+    idx = np.floor((x - float(x.min())) / width).astype(int)
+    n_bins = int(idx.max()) + 1
+    sums = np.bincount(idx, r, n_bins)
+    counts = np.bincount(idx, None, n_bins)
+    profile = np.where(counts > 0, sums / np.maximum(counts, 1), 0.0)
+    size = 4 * (1 << (n_bins - 1).bit_length())
+    power = np.abs(np.fft.rfft(profile, size)) ** 2
+    freqs = np.fft.rfftfreq(size, width)
+    with np.errstate(divide="ignore"):
+        periods = np.where(freqs > 0, 1.0 / freqs, np.inf)
+    inside = (periods >= p_lo) & (periods <= p_hi)
+    if not inside.any():
+        return None
+    k = int(np.argmax(np.where(inside, power, -1.0)))
+    span = n_bins * width
+    return PeriodChoice(float(periods[k]), max(1.0, span / p_lo - span / p_hi))
 
 
 def moving_rows(m: Measured, speed_max: float) -> np.ndarray:
@@ -148,9 +189,14 @@ def torque_relation(m: Measured, axis: AxisConfig, scans: Scans) -> Relation:
 
 
 def torque_candidates(
-    m: Measured, axis: AxisConfig, scans: Scans, effects: frozenset[Effect]
+    m: Measured,
+    axis: AxisConfig,
+    scans: Scans,
+    effects: frozenset[Effect],
+    period: PeriodChoice | None = None,
 ) -> list[Candidate]:
-    """The regressors of every effect in ``effects`` that acts on the torque balance."""
+    """The regressors of every effect in ``effects`` that acts on the torque balance (the
+    position-periodic torque at ``period``, :func:`choose_period`)."""
     v, x = m.speed, m.load_position
     kr = axis.transmission_ratio
     sign = np.sign(v)
@@ -181,18 +227,16 @@ def torque_candidates(
                 "friction.stribeck_speed",
             )
         )
-    if Effect.PERIODIC_DISTURBANCE in effects and scans.periods:
-        scan = []
-        for p in scans.periods:
-            ph = 2.0 * math.pi * x / p
-            scan.append({PERIODIC_COS: np.sin(ph), PERIODIC_SIN: np.cos(ph)})
+    if Effect.PERIODIC_DISTURBANCE in effects and period is not None:
+        ph = 2.0 * math.pi * x / period.period
         out.append(
             Candidate(
                 Effect.PERIODIC_DISTURBANCE,
                 NAME,
-                scan,
-                list(scans.periods),
+                [{PERIODIC_COS: np.sin(ph), PERIODIC_SIN: np.cos(ph)}],
+                [period.period],
                 "disturbance.periodic_period",
+                look_elsewhere=period.looked_at,
             )
         )
     if Effect.COMPLIANCE in effects and not m.two_systems:

@@ -37,9 +37,9 @@ from .replay import ReplayInput, compared_quantity, replay
 
 NAME = "closed loop"
 #: Dead times tried, in speed cycles.
-DELAY_CYCLES = (1, 2, 3, 4, 6, 8, 12, 16, 24)
+DELAY_CYCLES = (1, 2, 3, 4, 6, 8, 12, 16)
 #: Torque limits tried, as percentiles of the recorded |torque|.
-LIMIT_PERCENTILES = (99.0, 99.7, 99.95, 100.0)
+LIMIT_PERCENTILES = (99.0, 99.8, 100.0)
 #: Free play tried (one measuring system), as multiples of the following error's spread.
 BACKLASH_FRACTIONS = (0.02, 0.1, 0.5)
 #: Relative step of the base sensitivities.

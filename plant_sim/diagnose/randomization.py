@@ -40,9 +40,9 @@ from scipy import linalg, stats
 from .metrics import autocorrelation_time
 
 #: Largest order of the pre-whitening filter.
-MAX_AR_ORDER = 24
+MAX_AR_ORDER = 12
 #: Replicates of the wild block bootstrap.
-REPLICATES = 4000
+REPLICATES = 2000
 #: Blocks are this many autocorrelation times of the whitened residual long (at least
 #: MIN_BLOCK samples).
 BLOCK_TAUS = 3.0
@@ -60,17 +60,19 @@ class Whitener:
         return len(self.coef) - 1
 
     def apply(self, x: np.ndarray) -> np.ndarray:
-        """Filter along the first axis (columns of a matrix each)."""
+        """Filter along the first axis (columns of a matrix each); the first ``order`` rows
+        are passed through (they are not valid rows, :meth:`valid`)."""
         x = np.asarray(x, dtype=float)
         if self.order == 0:
             return x.copy()
         out = np.empty_like(x)
         c = self.coef
-        out[: self.order] = x[: self.order]
-        tail = x[self.order :] * c[0]
-        for k in range(1, self.order + 1):
-            tail = tail + c[k] * x[self.order - k : len(x) - k]
-        out[self.order :] = tail
+        p = self.order
+        out[:p] = x[:p]
+        tail = x[p:] * c[0]
+        for k in range(1, p + 1):
+            tail = tail + c[k] * x[p - k : len(x) - k]
+        out[p:] = tail
         return out
 
     def valid(self, mask: np.ndarray) -> np.ndarray:

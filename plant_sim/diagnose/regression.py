@@ -21,7 +21,7 @@ estimator on the model's simulation would give what it gives on the recording).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -56,6 +56,9 @@ class Candidate:
     scan: list[dict[str, np.ndarray]]
     scan_values: list[float | None]
     scan_key: str | None = None  # the axis key the scan sets (stribeck_speed, period)
+    #: a choice made before the test among this many independent values (the period from
+    #: the residual's spectrum): the test's p is multiplied by it (Bonferroni)
+    look_elsewhere: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -181,7 +184,11 @@ def test_candidates(
     sides = []
     for rep, cands in zip(reps, rep_candidates, strict=True):
         v2 = w.valid(rep.mask)
-        sides.append((v2, w.apply(rep.matrix(keys)), w.apply(rep.y), cands))
+        # the base projected out once per replay: each scan point is then a small fit
+        xr = w.apply(rep.matrix(keys))[v2]
+        q = np.linalg.qr(xr)[0] if xr.shape[1] else np.zeros((int(v2.sum()), 0))
+        yr = w.apply(rep.y)[v2]
+        sides.append((v2, q, yr - q @ (q.T @ yr), cands))
     inflation = 1.0 + 1.0 / len(sides) if sides else 1.0
     for cand in candidates:
         zs, offsets, rep_coefs = [], [], []
@@ -191,13 +198,13 @@ def test_candidates(
             zs.append(z)
             gamma = np.zeros(len(ck))
             n_used = 0
-            for v2, rx, ry, cands in sides:
+            for v2, q, r_rep, cands in sides:
                 other = cands.get(cand.effect)
                 if other is None:
                     continue
-                zr = w.apply(np.column_stack([other.scan[i][k] for k in ck]))
-                design = np.column_stack([rx, zr])[v2]
-                gamma = gamma + _lstsq(design, ry[v2])[len(keys) :]
+                zr = w.apply(np.column_stack([other.scan[i][k] for k in ck]))[v2]
+                zr = zr - q @ (q.T @ zr)
+                gamma = gamma + _lstsq(zr, r_rep)
                 n_used += 1
             if n_used:
                 gamma = gamma / n_used
@@ -206,6 +213,8 @@ def test_candidates(
         result = scan_test(
             yw, xw, zs, np.where(valid, blocks, -1), rng, offsets=offsets, inflation=inflation
         )
+        if cand.look_elsewhere > 1.0:
+            result = replace(result, p=min(1.0, result.p * cand.look_elsewhere))
         best = result.best
         ck = list(cand.scan[best])
         # the calibrated estimate: the recording's coefficient less the estimator's own (replay)

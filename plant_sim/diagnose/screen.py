@@ -62,6 +62,9 @@ from .replay import ReplayInput, like_recording, replay
 
 #: Effects tested through the loop (after the plant effects).
 LOOP_EFFECTS = frozenset({Effect.TIME_DELAY, Effect.TORQUE_SATURATION})
+#: A loop test whose p was below this is run again once the model changed (a plant effect
+#: named); above it the loop showed nothing and its verdict stands.
+LOOP_AGAIN_P = 0.05
 #: Gain of a loop effect's signature (1: the effect at the scanned value explains the residual
 #: with its own magnitude) within which it is named.
 GAIN_RANGE = (0.5, 2.0)
@@ -355,11 +358,23 @@ def _plant_candidates(
     model: AxisConfig,
     scans: idim.Scans,
     effects: frozenset[Effect],
+    period: idim.PeriodChoice | None = None,
 ) -> list[Candidate]:
-    out = idim.torque_candidates(m, model, scans, effects)
+    out = idim.torque_candidates(m, model, scans, effects, period)
     if force is not None:
         out += dfl.deflection_candidates(m, force, effects)
     return out
+
+
+def _period(rnd: _Round, m_rec: Measured, scans: idim.Scans) -> idim.PeriodChoice | None:
+    """The period of the torque balance residual's largest peak over position (recording)."""
+    if scans.period_band is None:
+        return None
+    rec = rnd.relations[idim.NAME][0]
+    f = rnd.fitted[idim.NAME]
+    keys = list(f.keys)
+    fitted = rec.matrix(keys) @ np.array([f.recording[k] for k in keys]) if keys else 0.0
+    return idim.choose_period(m_rec, rec.y - fitted, rec.mask, scans.period_band)
 
 
 def _plant_tests(
@@ -370,10 +385,11 @@ def _plant_tests(
     effects: frozenset[Effect],
     rng: np.random.Generator,
 ) -> dict[Effect, EffectTest]:
-    cands = _plant_candidates(m_rec, rnd.force, model, scans, effects)
+    period = _period(rnd, m_rec, scans) if Effect.PERIODIC_DISTURBANCE in effects else None
+    cands = _plant_candidates(m_rec, rnd.force, model, scans, effects, period)
     forces: list[np.ndarray | None] = list(rnd.sim_forces) or [None] * len(rnd.m_sims)
     sim_cands = [
-        {c.effect: c for c in _plant_candidates(ms, f, model, scans, effects)}
+        {c.effect: c for c in _plant_candidates(ms, f, model, scans, effects, period)}
         for ms, f in zip(rnd.m_sims, forces, strict=True)
     ]
     out: dict[Effect, EffectTest] = {}
@@ -399,10 +415,11 @@ def _conditional_p(
     of their common relation (on the recording; the calibration's offsets are small next to
     an effect that is significant, and this asks only whether one explains the other)."""
     rec = rnd.relations[given.relation][0]
+    period = _period(rnd, m_rec, scans)
     cands = {
         c.effect: c
         for c in _plant_candidates(
-            m_rec, rnd.force, model, scans, frozenset({given.effect, tested})
+            m_rec, rnd.force, model, scans, frozenset({given.effect, tested}), period
         )
         if c.relation == given.relation
     }
@@ -479,6 +496,21 @@ def _judge(
                         "resembles it in part, a misfit of the model rather than this effect"
                     ),
                 )
+            if (
+                not why
+                and e is Effect.TIME_DELAY
+                and gain * t.estimate.get("control.delay", 0.0) < model.control.speed_cycle
+            ):
+                vals, why = (
+                    {},
+                    (
+                        f"its effective dead time (gain {gain:.2g} x "
+                        f"{t.estimate['control.delay']:.3g} s) is below one speed cycle "
+                        f"({model.control.speed_cycle:g} s), the "
+                        "smallest the axis file holds; an integration step or a friction law that "
+                        "decides stick and slip at other instants makes such a shift"
+                    ),
+                )
             if not vals:
                 ok, note = False, f"significant but not physical: {why}"
             elif not MODELS[e].significant(_safe(model, vals), data):
@@ -526,12 +558,15 @@ def _refine(
     coefficients re-fitted there. Estimation only: the test was the scan's."""
     if best.effect is Effect.STRIBECK_FRICTION:
         grid, key = scans.stribeck_speeds, "friction.stribeck_speed"
+        i = best.test.best
+        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
     elif best.effect is Effect.PERIODIC_DISTURBANCE:
-        grid, key = scans.periods, "disturbance.periodic_period"
+        key = "disturbance.periodic_period"
+        p0, span = best.estimate[key], float(np.ptp(m_rec.load_position))
+        # within a quarter of a period's drift over the travel either way
+        lo, hi = p0 / (1.0 + p0 / span), p0 * (1.0 + p0 / span)
     else:
         return best
-    i = best.test.best
-    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
     rec = rnd.relations[idim.NAME][0]
     f = rnd.fitted[idim.NAME]
     w, valid = f.whitener, f.valid
@@ -615,7 +650,7 @@ def screen(
         rnd_no += 1
         tests = _plant_tests(rnd, m_rec, model, scans, frozenset(remaining), rng)
         sig, round_verdicts = _judge(tests, model, alpha_each, rnd_no, data)
-        if loop_left and loop_model is not model and (rnd_no == 1 or loop_pending or not sig):
+        if loop_left and loop_model is not model and (rnd_no == 1 or loop_pending):
             lc = loop_candidates(
                 model, inp, frozenset(loop_left), not m_rec.two_systems, following, _with_contact
             )
@@ -623,7 +658,8 @@ def screen(
             n_replays += sum(len(c.variants) for c in lc) + 3
             loop_model = model
             loop_sig, loop_verdicts = _judge(lt, model, alpha_each, rnd_no, data)
-            loop_pending = bool(loop_sig)
+            # tested again against a changed model only where something showed (p < 0.05)
+            loop_pending = any(t.p < LOOP_AGAIN_P for t in lt.values())
             sig += loop_sig
             round_verdicts += loop_verdicts
             tests.update(lt)
