@@ -146,7 +146,7 @@ def parameters_for_fit(
     wrong = {p.key: p for p in screening.parameters if p.beyond}
     effect_keys = _effect_keys(effects, axis)
     fixed_keys: set[str] = set()
-    if Effect.BACKLASH in effects and nominal.is_rigid:
+    if Effect.BACKLASH in effects and nominal.is_rigid and Effect.COMPLIANCE not in effects:
         # the free play's contact stiffness on a rigid model is not fitted
         fixed_keys |= {"mechanics.antiresonance", "mechanics.damping_ratio"}
     params: list[Parameter] = []

@@ -75,24 +75,35 @@ def model_values(axis: AxisConfig) -> dict[str, float]:
 
 
 def deflection_relation(
-    m: Measured, axis: AxisConfig, force: np.ndarray, threshold: float, rows: np.ndarray
+    m: Measured,
+    axis: AxisConfig,
+    force: np.ndarray,
+    threshold: float,
+    rows: np.ndarray,
+    contact: bool = False,
 ) -> Relation | None:
     """The deflection with the columns of what ``axis`` has (None: one measuring system);
     ``force`` from :func:`load_side_force`; ``rows`` where that force is known (the torque
     balance's: moving — at rest friction holds any force up to its static level — away from
-    reversals) and |F_s| > ``threshold`` (:func:`force_threshold` of the recording)."""
+    reversals) and |F_s| > ``threshold`` (:func:`force_threshold` of the recording).
+    ``contact``: the axis's elastic element is the stiff contact added with free play to a
+    rigid model (not fitted): its deflection is a known term, not a free column."""
     if not m.two_systems or m.deflection is None or m.deflection_rate is None:
         return None
     cols: dict[str, np.ndarray] = {ZERO: np.ones(m.n)}
-    if axis.mechanics.antiresonance is not None:
+    y = m.deflection
+    values = model_values(axis)
+    if axis.mechanics.antiresonance is not None and contact:
+        y = y - values[FLEXIBILITY] * force + values[DAMPING] * m.deflection_rate
+    elif axis.mechanics.antiresonance is not None:
         cols[FLEXIBILITY] = force
         cols[DAMPING] = -m.deflection_rate
     if axis.mechanics.backlash is not None:
         cols["mechanics.backlash"] = 0.5 * np.sign(force)
     if axis.control.sensor_time_offset is not None:
         cols["control.sensor_time_offset"] = m.speed
-    values = {k: v for k, v in model_values(axis).items() if k in cols}
-    return Relation(NAME, m.deflection, cols, rows & (np.abs(force) > threshold), values)
+    values = {k: v for k, v in values.items() if k in cols}
+    return Relation(NAME, y, cols, rows & (np.abs(force) > threshold), values)
 
 
 def deflection_candidates(

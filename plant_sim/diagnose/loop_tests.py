@@ -49,6 +49,8 @@ BASE_STEP = {
     "mechanics.damping_ratio": 0.3,
 }
 GAIN_KEY = "gain"
+#: A signature larger than this many noise σ somewhere is a variant that destabilised the loop.
+UNSTABLE = 1e8
 
 
 @dataclass(frozen=True)
@@ -188,7 +190,9 @@ def loop_tests(
         }  # type: ignore[index]
         if not all(np.all(np.isfinite(d)) for d in diff.values()):
             return None
-        return stacked(diff)
+        z = stacked(diff)
+        # a variant that made the loop unstable (a long dead time) grows without bound
+        return z if float(np.max(np.abs(z))) < UNSTABLE else None
 
     jobs: list[AxisConfig] = [a for _, a in _base_variants(model)]
     for cand in candidates:

@@ -209,10 +209,16 @@ def _compliance_values(
         return {}, "an elastic element needs motor-side inertia; the model lumps it all in the load"
     if dfl.FLEXIBILITY in est:
         flex = est[dfl.FLEXIBILITY]
+        damping = est.get(dfl.DAMPING, 0.0)
+        if model.mechanics.antiresonance is not None:
+            # on top of the stiff contact that came with free play (a known term there)
+            known = dfl.model_values(model)
+            flex += known[dfl.FLEXIBILITY]
+            damping += known[dfl.DAMPING]
         if not flex > 0.0:
             return {}, f"negative flexibility {flex:.3g}"
         wa = math.sqrt(1.0 / (flex * mass))
-        xi = 0.5 * est.get(dfl.DAMPING, 0.0) * wa
+        xi = 0.5 * damping * wa
     else:
         kappa = est.get(idim.COMPLIANCE_KEY, 0.0)
         if not kappa > 0.0:
@@ -252,11 +258,16 @@ def base_values(
         out["disturbance.periodic_amplitude"] = math.hypot(c, s)
         out["disturbance.periodic_phase"] = math.atan2(s, c)
     mass = out.get("mechanics.load_mass", model.mechanics.load_mass)
-    if dfl.FLEXIBILITY in corrected and corrected[dfl.FLEXIBILITY] > 0.0:
+    wa0 = model.mechanics.antiresonance
+    if wa0 and dfl.FLEXIBILITY in corrected and corrected[dfl.FLEXIBILITY] > 0.0:
         wa = math.sqrt(1.0 / (corrected[dfl.FLEXIBILITY] * mass))
-        out["mechanics.antiresonance"] = min(wa, 0.99 * max(max_antiresonance(model, 50), 1e-9))
-        if dfl.DAMPING in corrected:
-            out["mechanics.damping_ratio"] = 0.5 * corrected[dfl.DAMPING] * wa
+        # a calibrated correction, not a new estimate: within a factor 2 of the model's
+        if 0.5 * wa0 <= wa <= 2.0 * wa0:
+            out["mechanics.antiresonance"] = min(wa, 0.99 * max(max_antiresonance(model, 50), 1e-9))
+            if dfl.DAMPING in corrected:
+                xi = 0.5 * corrected[dfl.DAMPING] * wa
+                if 0.0 <= xi <= 1.0:
+                    out["mechanics.damping_ratio"] = xi
     final = {}
     for k, v in out.items():
         if not math.isfinite(v):
@@ -316,11 +327,12 @@ def _calibrate(
     scans: idim.Scans,
     seed: int,
     effects: frozenset[Effect] = frozenset(),
+    contact: bool = False,
 ) -> _Round:
     """Replay ``model`` like the recording, give it the recording's measurement noise
     (:func:`.measured.measurement_noise`, REPLAY_DRAWS independent draws) and build every
     relation on the recording and on the draws (the deflection with the load-side force of
-    the calibrated torque balance)."""
+    the calibrated torque balance; ``contact``: :func:`.deflection.deflection_relation`)."""
     sim = replay(model, inp, _kernel_options(model))
     like = like_recording(inp, sim)
     noise = measurement_noise(recording, like)
@@ -340,9 +352,9 @@ def _calibrate(
         force = dfl.load_side_force(t_rec.columns, coef, kr)
         sim_forces = [dfl.load_side_force(t.columns, coef, kr) for t in t_sims]
         thr = dfl.force_threshold(force)
-        d_rec = dfl.deflection_relation(m_rec, model, force, thr, t_rec.mask)
+        d_rec = dfl.deflection_relation(m_rec, model, force, thr, t_rec.mask, contact)
         d_sims = [
-            dfl.deflection_relation(ms, model, f, thr, t.mask)
+            dfl.deflection_relation(ms, model, f, thr, t.mask, contact)
             for ms, f, t in zip(m_sims, sim_forces, t_sims, strict=True)
         ]
         if d_rec is not None:
@@ -537,6 +549,12 @@ def _judge(
     return sig, out
 
 
+def _contact(named: Sequence[Effect], nominal: AxisConfig) -> bool:
+    """Free play named on a rigid model brought a stiff contact that is not fitted (until
+    compliance is named too)."""
+    return nominal.is_rigid and Effect.BACKLASH in named and Effect.COMPLIANCE not in named
+
+
 def _base_update(rnd: _Round, model: AxisConfig, nominal: AxisConfig) -> dict[str, float]:
     """The model's parameters at their calibrated estimates, within their data-sheet box."""
     base: dict[str, float] = {}
@@ -634,14 +652,25 @@ def screen(
     loop_left = set(candidates & LOOP_EFFECTS)
     if Effect.BACKLASH in candidates and not m_rec.two_systems:
         loop_left.add(Effect.BACKLASH)
-    rnd = _calibrate(inp, recording, m_rec, model, scans, seed, frozenset(remaining))
+    rnd = _calibrate(
+        inp, recording, m_rec, model, scans, seed, frozenset(remaining), _contact(named, nominal)
+    )
     n_replays = 1
     # the model's own parameters where the evidence puts them (within their data-sheet
     # uncertainty) before anything is tested through the loop
     moved = _safe(model, _base_update(rnd, model, nominal))
     if moved != model:
         model = moved
-        rnd = _calibrate(inp, recording, m_rec, model, scans, seed, frozenset(remaining))
+        rnd = _calibrate(
+            inp,
+            recording,
+            m_rec,
+            model,
+            scans,
+            seed,
+            frozenset(remaining),
+            _contact(named, nominal),
+        )
         n_replays += 1
     loop_model: AxisConfig | None = None
     loop_pending = False
@@ -676,7 +705,16 @@ def screen(
             lead = max(loop_sig, key=lambda t: t.z)
             vals_l, _ = effect_values(lead.effect, lead.estimate, model)
             trial = _safe(model, vals_l)
-            rnd_l = _calibrate(inp, recording, m_rec, trial, scans, seed, frozenset(remaining))
+            rnd_l = _calibrate(
+                inp,
+                recording,
+                m_rec,
+                trial,
+                scans,
+                seed,
+                frozenset(remaining),
+                _contact(named, nominal),
+            )
             n_replays += 1
             again = _plant_tests(
                 rnd_l, m_rec, trial, scans, frozenset(t.effect for t in plant_sig), rng
@@ -705,7 +743,16 @@ def screen(
             else v
             for v in verdicts
         ]
-        rnd = _calibrate(inp, recording, m_rec, model, scans, seed, frozenset(remaining))
+        rnd = _calibrate(
+            inp,
+            recording,
+            m_rec,
+            model,
+            scans,
+            seed,
+            frozenset(remaining),
+            _contact(named, nominal),
+        )
         n_replays += 1
     # final calibration: every parameter of the model as the evidence estimates it
     params: list[ParameterEvidence] = []
