@@ -5,9 +5,10 @@ The evidence stage (:mod:`.screen`) has named the effects and estimated every pa
 linear regressions. Here the whole axis is fitted by closed-loop simulation error
 (:mod:`.fit`, :mod:`.replay`) — the model a user simulates with — from those estimates:
 
-* **the nominal within its data sheet**: the nominal's uncertain parameters free within their
-  data-sheet uncertainty (:data:`.parameters.UNCERTAINTY`), the reference every effect is
-  judged against;
+* **the nominal within its data sheet**: the nominal with its uncertain parameters where the
+  evidence puts them, within their data-sheet uncertainty (:data:`.parameters.UNCERTAINTY`),
+  the reference the named effects are scored against (re-fitted in closed loop within those
+  boxes when nothing is named: then it is the fitted model);
 * **the model with the named effects**: the same, with the named effects' parameters free
   around their evidence estimates. A parameter the evidence puts beyond its data-sheet
   uncertainty (beyond three standard errors: the data sheet is wrong) is free around the
@@ -210,6 +211,17 @@ def _fit_model(
     return ModelFit(name, tuple(effects), res, score, loss, tuple(bounds))
 
 
+def _evaluate(
+    ctx: Context, name: str, axis: AxisConfig, obj: Objective, scorer: Scorer
+) -> ModelFit:
+    """``axis`` simulated and scored as it is (no fit)."""
+    options = options_for(axis.mechanics.antiresonance, axis)
+    res = obj.residuals(axis, options)
+    result = FitResult({}, axis, obj.cost(res), res, 0, 1, 1, "evaluated", options)
+    score, loss = scorer.score(result, 0)
+    return ModelFit(name, (), result, score, loss)
+
+
 def _without(axis: AxisConfig, effect: Effect, nominal: AxisConfig) -> AxisConfig:
     """``axis`` with ``effect`` taken out again (its keys as in the nominal)."""
     return axis.with_values({k: nominal.value(k) for k in MODELS[effect].keys})
@@ -245,10 +257,15 @@ def closed_loop(ctx: Context, screening: Screening, pool: Executor | None = None
         base_axis = nominal.with_values(start)
     except AxisFileError:
         base_axis = nominal
-    ctx.stage("closed loop: the nominal within its data sheet")
-    base = _fit_model(
-        ctx, "the nominal within its data sheet", base_axis, (), screening, obj, scorer, pool
-    )
+    if named:
+        # the reference the named effects are scored against: the nominal with its
+        # parameters where the evidence puts them (within the data sheet), not re-fitted
+        base = _evaluate(ctx, "the nominal within its data sheet", base_axis, obj, scorer)
+    else:
+        ctx.stage("closed loop: the nominal within its data sheet")
+        base = _fit_model(
+            ctx, "the nominal within its data sheet", base_axis, (), screening, obj, scorer, pool
+        )
     final = base
     alternatives: list[ModelFit] = []
     swaps: list[str] = []

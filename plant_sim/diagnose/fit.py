@@ -15,7 +15,7 @@ a global stage scores a scrambled Sobol sample of the box plus the given startin
 1 % step so that the stick-slip events of Coulomb friction, which move by whole substeps, do
 not fake the gradient); the best end point wins. A parameter that only takes discrete values
 (the dead time, whole speed cycles in the kernel) is profiled over its grid first and the
-continuous ones are fitted at the two best grid values.
+continuous ones are fitted at the best grid value.
 """
 
 from __future__ import annotations
@@ -391,7 +391,7 @@ def fit(
         _fit_continuous(
             spec, {disc.key: value}, objective, max_nfev, n_starts, seed, progress, pool
         )
-        for _, value in profile[:2]
+        for _, value in profile[:1]
     ]
     best = min(results, key=lambda r: r.cost)
     sims = len(disc.values) + sum(r.n_simulations for r in results)
