@@ -406,12 +406,3 @@ def fit(
         message=best.message,
         options=spec.options,
     )
-
-
-def restart(spec: FitSpec, values: Mapping[str, float]) -> FitSpec:
-    """``spec`` started at ``values`` (same bounds and scales), without a global stage."""
-    params = tuple(
-        Parameter(p.key, p.low, p.high, values.get(p.key, p.start), p.scale, p.log)
-        for p in spec.parameters
-    )
-    return FitSpec(spec.base, params, (), spec.discrete, spec.options, 0)

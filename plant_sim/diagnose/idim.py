@@ -179,7 +179,12 @@ def torque_relation(m: Measured, axis: AxisConfig, scans: Scans) -> Relation:
     cols: dict[str, np.ndarray] = {"mechanics.load_mass": m.accel / kr}
     cols.update(_friction_columns(axis, v))
     d = axis.disturbance
-    if d.constant_torque is not None:
+    if d.constant_torque is not None and axis.friction.coulomb_negative is not None:
+        # while the axis moves, a load torque is direction-dependent Coulomb friction (1 =
+        # [v>0] + [v<0]): with both in the model the load torque is not identified on these
+        # rows and stays at the model's value (a known term)
+        y = y - d.constant_torque
+    elif d.constant_torque is not None:
         cols["disturbance.constant_torque"] = np.ones(m.n)
     if d.periodic_amplitude is not None and d.periodic_period:
         ph = 2.0 * math.pi * x / d.periodic_period

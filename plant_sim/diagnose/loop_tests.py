@@ -11,8 +11,8 @@ regressor of such an effect is its *signature in the closed loop*: the change of
 times of whole speed cycles, torque limits at the top quantiles of the recorded torque), a
 scan of time shifts between set point and torque. The test regresses the recording's
 residual against the current model on that signature, linear in its gain (1: the effect at
-that value), with the sensitivities of the parameters the torque balance does not pin (the
-load mass, whose estimate a dead time biases; the elastic element's) as base regressors, on
+that value), with the signatures of the model's own uncertain parameters as base regressors
+(the load mass, whose estimate a dead time biases, the friction, the elastic element), on
 the torque, the speed and the following error, each pre-whitened by its own residual's AR
 filter and scaled by its whitened noise, with the null of :mod:`.randomization`.
 """
@@ -31,6 +31,7 @@ from ..errors import AxisFileError, ScenarioError
 from ..kernel import MAX_DELAY
 from ..model import KernelOptions
 from .effects import Effect
+from .parameters import UNCERTAIN_KEYS
 from .randomization import Whitener, fit_whitener, scan_test, time_blocks
 from .regression import EffectTest
 from .replay import ReplayInput, compared_quantity, replay
@@ -129,11 +130,16 @@ def loop_candidates(
 
 
 def _base_variants(model: AxisConfig) -> list[tuple[str, AxisConfig]]:
+    """The model with each of its uncertain parameters moved (BASE_STEP, 5 % else): their
+    signatures are the base regressors, so that what is left of a parameter's error after the
+    torque balance's estimate (a Coulomb level a few per cent off changes every reversal) is
+    not taken for a dead time."""
     out = []
-    for key, step in BASE_STEP.items():
+    for key in UNCERTAIN_KEYS:
         v = model.value(key)
-        if v is None or v == 0.0:
+        if v is None or v == 0.0 or key in ("friction.creep_speed", "disturbance.periodic_period"):
             continue
+        step = BASE_STEP.get(key, 0.05)
         try:
             out.append((key, model.with_values({key: float(v) * (1.0 + step)})))
         except AxisFileError:
@@ -149,10 +155,11 @@ def loop_tests(
     candidates: Sequence[LoopCandidate],
     rng: np.random.Generator,
     pool: Executor | None = None,
-) -> dict[Effect, EffectTest]:
-    """Test every loop candidate against the replay ``simulated`` of ``model``."""
+) -> tuple[dict[Effect, EffectTest], int]:
+    """Test every loop candidate against the replay ``simulated`` of ``model``; also the
+    number of replays it took."""
     if not candidates:
-        return {}
+        return {}, 0
     signals = _signals(inp)
     base_sim = simulated
     resid = {s: inp.compared(s) - compared_quantity(inp, s, base_sim[s]) for s in signals}  # type: ignore[index]
@@ -217,7 +224,7 @@ def loop_tests(
         value, gain = _face_value(y, base, usable, blocks >= 0)
         est = {cand.key: float(value), GAIN_KEY: gain}
         out[cand.effect] = EffectTest(cand.effect, NAME, result, est, {})
-    return out
+    return out, len(jobs)
 
 
 def _face_value(

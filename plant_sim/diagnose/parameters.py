@@ -1,30 +1,24 @@
 """The fitted parameters of an axis file: bounds, normalisation, data-sheet uncertainty and
-units of every key the diagnosis may fit, the keys re-fitted for a model, and the kernel
-substeps a fit needs.
+units of every key the diagnosis may fit, and the kernel substeps a fit needs.
 
-Every bound rule is here (:mod:`.effects` only chooses starts, :mod:`.fit` only searches).
-Bounds scale with the recording (peak torque, top speed, following error) so that one rule
-serves a 6.5 t milling axis and a 25 kg slide; the nominal axis anchors relative bounds.
+Every bound rule is here (:mod:`.closed_loop` chooses which keys are free, :mod:`.fit` only
+searches). Bounds scale with the recording (peak torque, top speed, following error) so that
+one rule serves a 6.5 t milling axis and a 25 kg slide; the nominal axis anchors relative
+bounds.
 
-Data-sheet uncertainty (:data:`UNCERTAINTY`): how far a re-fit may move a parameter from the
-nominal value before the move itself is a finding. A parameter that ends on a bound of its
-search box, or moves further than its uncertainty, is reported as a sign of missing physics
-(:func:`suspects`): small differences of model form (a dead time, a cogging torque) are
-otherwise soaked up by the elastic parameters, and the diagnosis then compares every effect,
-fitted with those parameters held within their uncertainty (:func:`within_uncertainty`),
-against the re-fit that moved them further.
+Data-sheet uncertainty (:data:`UNCERTAINTY`, :func:`uncertainty_box`): how far the closed-loop
+fit may move a nominal parameter — unless the evidence stage's estimate lies beyond it by more
+than its standard errors, which says the data sheet is wrong (:mod:`.screen`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 from ..axis import AxisConfig, AxisKind
 from ..model import MAX_OMEGA_DT, KernelOptions
 from .evidence import DataScales
-from .fit import PERIODIC_COS, PERIODIC_SIN, FitResult, FitSpec, Parameter
+from .fit import PERIODIC_COS, PERIODIC_SIN, Parameter
 
 #: Relative uncertainty of a data-sheet value (1 sigma-ish; a move beyond it is a finding).
 #: Mass from the drawing/weighing: 15 %; stiffness (antiresonance) from a frequency response
@@ -225,27 +219,6 @@ CREEP_RANGE = (1e-5, 0.05)
 MODEL_FORM_KEYS = ("friction.creep_speed",)
 
 
-def free_keys(
-    axis: AxisConfig, added_keys: Sequence[str] = (), fixed: Sequence[str] = ()
-) -> list[str]:
-    """Keys refitted for a model: the uncertain keys present, plus ``added_keys`` (continuous
-    keys of effects the diagnosis added, a torque limit), minus ``fixed`` (a backlash
-    contact, parameters held at nominal). A key whose every change would make the axis
-    invalid is not free: a backlash present with 0 on a rigid axis (it needs an
-    antiresonance) stays 0."""
-    keys = [k for k in UNCERTAIN_KEYS if axis.value(k) is not None and k not in fixed]
-    keys += [k for k in added_keys if k not in fixed and k not in keys]
-    if axis.is_rigid and "mechanics.backlash" in keys:
-        keys.remove("mechanics.backlash")
-    out: list[str] = []
-    for k in keys:
-        if k == "disturbance.periodic_amplitude":
-            out += [PERIODIC_COS, PERIODIC_SIN]
-        elif k != "disturbance.periodic_phase":
-            out.append(k)
-    return out
-
-
 def current_value(axis: AxisConfig, key: str) -> float:
     if key in (PERIODIC_COS, PERIODIC_SIN):
         amp = axis.disturbance.periodic_amplitude or 0.0
@@ -255,124 +228,19 @@ def current_value(axis: AxisConfig, key: str) -> float:
     return 0.0 if value is None else float(value)
 
 
-def base_parameters(
-    axis: AxisConfig,
-    keys: Sequence[str],
-    scales: DataScales,
-    nominal: AxisConfig,
-    hold: Sequence[str] = (),
-) -> tuple[Parameter, ...]:
-    """The fitted parameters of ``keys`` around their values in ``axis``; the ``hold`` ones
-    (suspects of a re-fit, while effects are compared) only within their data-sheet
-    uncertainty (:func:`within_uncertainty`)."""
-    params = (parameter_for(k, current_value(axis, k), scales, nominal, axis) for k in keys)
-    return tuple(within_uncertainty(p, nominal) if p.key in hold else p for p in params)
-
-
-def _max_wa(parameters: Sequence[Parameter], axis: AxisConfig) -> float | None:
-    for p in parameters:
-        if p.key == "mechanics.antiresonance":
-            return p.high
-    return axis.mechanics.antiresonance
-
-
-def nominal_spec(
-    axis: AxisConfig, scales: DataScales, idim: Mapping[str, float], n_global: int = 12
-) -> FitSpec:
-    """Re-fit of the nominal model's uncertain parameters: starts at the nominal values, at
-    the inverse-dynamics estimates, and at the best points of a Sobol sample of the box."""
-    params = base_parameters(axis, free_keys(axis), scales, axis)
-    idim_start = {k: v for k, v in idim.items() if any(p.key == k for p in params)}
-    return FitSpec(
-        base=axis,
-        parameters=params,
-        extra_starts=(idim_start,) if idim_start else (),
-        options=options_for(_max_wa(params, axis), axis),
-        n_global=n_global,
-    )
-
-
-@dataclass(frozen=True)
-class Suspect:
-    """A re-fitted parameter that ended on a bound of its search box or moved further from
-    the nominal value than its data-sheet uncertainty: a sign of missing physics."""
-
-    key: str
-    nominal: float
-    fitted: float
-    uncertainty: float  # relative
-    on_bound: str  # "", "lower" or "upper"
-
-    @property
-    def change_percent(self) -> float:
-        return 100.0 * (self.fitted / self.nominal - 1.0) if self.nominal else math.inf
-
-
-def suspects(
-    result: FitResult, parameters: Sequence[Parameter], nominal: AxisConfig
-) -> list[Suspect]:
-    """Parameters of a re-fit that ended on a bound (within 1 % of the box in normalised
-    units; a friction or torque ending at zero counts) or moved beyond :data:`UNCERTAINTY`
-    from their nominal value (only keys the nominal has with a non-zero value)."""
-    out = []
-    for p in parameters:
-        if p.key not in result.values or p.key in MODEL_FORM_KEYS:
-            continue
-        value = result.values[p.key]
-        lo, hi = p.u_bounds
-        u = p.to_u(value)
-        tol = 0.01 * (hi - lo)
-        bound = "lower" if u <= lo + tol else "upper" if u >= hi - tol else ""
-        nom = nominal.value(p.key) if p.key not in (PERIODIC_COS, PERIODIC_SIN) else None
-        rel = UNCERTAINTY.get(p.key, 1.0)
-        moved = nom is not None and beyond_uncertainty(p.key, value, nominal)
-        if bound and p.low == 0.0 and (nom is None or nom == 0.0):
-            bound = ""  # an absent/zero value staying at zero is no finding
-        if bound or moved:
-            out.append(Suspect(p.key, float(nom or 0.0), float(value), rel, bound))
-    return out
-
-
 def uncertainty_box(key: str, nominal: AxisConfig) -> tuple[float, float] | None:
     """The values a data sheet allows for ``key``: the nominal value within its relative
     :data:`UNCERTAINTY` (None: the nominal has no value for it)."""
+    if key in (PERIODIC_COS, PERIODIC_SIN):
+        amp = nominal.disturbance.periodic_amplitude
+        if not amp:
+            return None
+        n = current_value(nominal, key)
+        u = UNCERTAINTY[key] * amp
+        return n - u, n + u
     n = nominal.value(key)
     if n is None or n == 0.0:
         return None
     u = UNCERTAINTY.get(key, 1.0)
     lo, hi = sorted((n * (1.0 - u), n * (1.0 + u)))
     return lo, hi
-
-
-def beyond_uncertainty(key: str, value: float, nominal: AxisConfig) -> bool:
-    """Whether ``value`` lies outside the data sheet's :func:`uncertainty_box` (False when
-    the nominal has no value for ``key``)."""
-    box = uncertainty_box(key, nominal)
-    return box is not None and not box[0] <= value <= box[1]
-
-
-def within_uncertainty(p: Parameter, nominal: AxisConfig) -> Parameter:
-    """``p`` with its bounds cut to the data sheet's :func:`uncertainty_box`."""
-    box = uncertainty_box(p.key, nominal)
-    if box is None:
-        return p
-    lo, hi = max(p.low, box[0]), min(p.high, box[1])
-    if not lo < hi:
-        return p
-    return Parameter(p.key, lo, hi, p.start, p.scale, p.log)
-
-
-def held_within(axis: AxisConfig, nominal: AxisConfig, keys: Sequence[str]) -> AxisConfig:
-    """``axis`` with ``keys`` moved to the nearest value its data sheet allows."""
-    values = {}
-    for k in keys:
-        box, v = uncertainty_box(k, nominal), axis.value(k)
-        if box is not None and v is not None:
-            values[k] = min(box[1], max(box[0], float(v)))
-    return axis.with_values(values) if values else axis
-
-
-def held_at_nominal(axis: AxisConfig, nominal: AxisConfig, keys: Sequence[str]) -> AxisConfig:
-    """``axis`` with ``keys`` set back to their nominal values (keys the nominal has)."""
-    values = {k: nominal.value(k) for k in keys if nominal.value(k) is not None}
-    return axis.with_values(values) if values else axis

@@ -683,8 +683,10 @@ def screen(
             lc = loop_candidates(
                 model, inp, frozenset(loop_left), not m_rec.two_systems, following, _with_contact
             )
-            lt = loop_tests(inp, model, _kernel_options(model), rnd.simulated, lc, rng, pool)
-            n_replays += sum(len(c.variants) for c in lc) + 3
+            lt, n_loop = loop_tests(
+                inp, model, _kernel_options(model), rnd.simulated, lc, rng, pool
+            )
+            n_replays += n_loop
             loop_model = model
             loop_sig, loop_verdicts = _judge(lt, model, alpha_each, rnd_no, data)
             # tested again against a changed model only where something showed (p < 0.05)
