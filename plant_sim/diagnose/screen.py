@@ -47,8 +47,8 @@ from . import idim
 from .effects import MODELS, Effect, effects_in
 from .evidence import DataScales, data_scales
 from .fit import PERIODIC_COS, PERIODIC_SIN
-from .loop_tests import GAIN_KEY, loop_candidates, loop_tests
 from .loop_tests import NAME as LOOP_NAME
+from .loop_tests import loop_candidates, loop_tests
 from .measured import Measured, measured, measurement_noise, with_noise
 from .parameters import (
     CONTACT_DAMPING,
@@ -65,9 +65,6 @@ LOOP_EFFECTS = frozenset({Effect.TIME_DELAY, Effect.TORQUE_SATURATION})
 #: A loop test whose p was below this is run again once the model changed (a plant effect
 #: named); above it the loop showed nothing and its verdict stands.
 LOOP_AGAIN_P = 0.05
-#: Gain of a loop effect's signature (1: the effect at the scanned value explains the residual
-#: with its own magnitude) within which it is named.
-GAIN_RANGE = (0.5, 2.0)
 #: Standard errors beyond the data-sheet box before the evidence says the data sheet is wrong.
 DATASHEET_SIGMAS = 3.0
 
@@ -497,32 +494,6 @@ def _judge(
         ok, note = t.p < alpha_each, ""
         if ok:
             vals, why = effect_values(e, t.estimate, model)
-            gain = t.estimate.get(GAIN_KEY, 1.0)
-            if t.relation == LOOP_NAME and not GAIN_RANGE[0] <= gain <= GAIN_RANGE[1]:
-                lo, hi = GAIN_RANGE
-                vals, why = (
-                    {},
-                    (
-                        f"its closed-loop signature at the scanned value enters with gain "
-                        f"{gain:.2g} (the effect itself: 1; accepted {lo:g}..{hi:g}): the residual "
-                        "resembles it in part, a misfit of the model rather than this effect"
-                    ),
-                )
-            if (
-                not why
-                and e is Effect.TIME_DELAY
-                and gain * t.estimate.get("control.delay", 0.0) < model.control.speed_cycle
-            ):
-                vals, why = (
-                    {},
-                    (
-                        f"its effective dead time (gain {gain:.2g} x "
-                        f"{t.estimate['control.delay']:.3g} s) is below one speed cycle "
-                        f"({model.control.speed_cycle:g} s), the "
-                        "smallest the axis file holds; an integration step or a friction law that "
-                        "decides stick and slip at other instants makes such a shift"
-                    ),
-                )
             if not vals:
                 ok, note = False, f"significant but not physical: {why}"
             elif not MODELS[e].significant(_safe(model, vals), data):
@@ -683,9 +654,7 @@ def screen(
             lc = loop_candidates(
                 model, inp, frozenset(loop_left), not m_rec.two_systems, following, _with_contact
             )
-            lt, n_loop = loop_tests(
-                inp, model, _kernel_options(model), rnd.simulated, lc, rng, pool
-            )
+            lt, n_loop = loop_tests(inp, model, _kernel_options(model), lc, rng, pool)
             n_replays += n_loop
             loop_model = model
             loop_sig, loop_verdicts = _judge(lt, model, alpha_each, rnd_no, data)
