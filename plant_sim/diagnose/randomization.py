@@ -42,7 +42,7 @@ from .metrics import autocorrelation_time
 #: Largest order of the pre-whitening filter.
 MAX_AR_ORDER = 12
 #: Replicates of the wild block bootstrap.
-REPLICATES = 2000
+REPLICATES = 5000
 #: Blocks are this many autocorrelation times of the whitened residual long (at least
 #: MIN_BLOCK samples).
 BLOCK_TAUS = 3.0
@@ -165,7 +165,7 @@ def time_blocks(valid: np.ndarray, residual: np.ndarray) -> tuple[np.ndarray, in
 
 
 @dataclass(frozen=True)
-class TestResult:
+class ScanResult:
     """A scan test: the largest residual reduction over the scan (``statistic``, in units of
     the whitened target squared), the index of the scan point, its p-value from the wild
     block bootstrap (``p_bootstrap``; ``p_tail`` a scaled-χ² fit to the replicates, used as
@@ -202,7 +202,7 @@ def scan_test(
     replicates: int = REPLICATES,
     offsets: Sequence[np.ndarray] | None = None,
     inflation: float = 1.0,
-) -> TestResult:
+) -> ScanResult:
     """Test ``candidates`` (one regressor matrix per scan point, rows like ``y``) against the
     base regressors ``base`` on the rows where ``blocks`` >= 0 (all already whitened).
     ``offsets`` (per scan point, like ``y``): the candidate's contribution under the null
@@ -224,7 +224,7 @@ def scan_test(
         qs.append(q)
         stats_.append(float(np.sum((q.T @ (r0 - off)) ** 2)) if q.shape[1] else 0.0)
     if not qs or nb < 2:
-        return TestResult(0.0, 0, 1.0, 1.0, 1.0, -math.inf, nb, 0, np.zeros(0), r0)
+        return ScanResult(0.0, 0, 1.0, 1.0, 1.0, -math.inf, nb, 0, np.zeros(0), r0)
     best = int(np.argmax(stats_))
     t_obs = stats_[best]
     qb = qs[best]
@@ -266,12 +266,13 @@ def scan_test(
     else:
         p_tail = 0.0 if t_obs > 0.0 else 1.0
         z = math.inf if t_obs > 0.0 else -math.inf
-    p = min(p_emp, p_tail) if p_tail < p_emp and p_emp <= 1.5 / (1.0 + replicates) else p_emp
+    # beyond the replicates' resolution the tail fit decides (never the floor 1/(1+R))
+    p = p_tail if p_emp <= 1.5 / (1.0 + replicates) else p_emp
     # coefficients of the best candidate in the full regression (least squares on the rows)
     zb = candidates[best][rows] if candidates[best].ndim == 2 else candidates[best][rows][:, None]
     design = np.column_stack([bv, zb]) if bv.shape[1] else zb
     coef, *_ = np.linalg.lstsq(design, yv - offs[best], rcond=None)
-    return TestResult(
+    return ScanResult(
         statistic=t_obs,
         best=best,
         p=p,
@@ -292,7 +293,7 @@ def face_value_test(
     blocks: np.ndarray,
     rng: np.random.Generator,
     replicates: int = REPLICATES,
-) -> TestResult:
+) -> ScanResult:
     """Test an effect *at its own size*: each candidate z_k is the whole signature of the
     effect at one value of a scan (a dead time, a torque limit), so the residual sum of
     squares it saves at gain 1, T_k = 2·z̃_k·r − ‖z̃_k‖² (z̃ with the base projected out, r the
@@ -312,7 +313,7 @@ def face_value_test(
         zv = z[rows]
         zt.append(zv - q0 @ (q0.T @ zv))
     if not zt or nb < 2:
-        return TestResult(0.0, 0, 1.0, 1.0, 1.0, -math.inf, nb, 0, np.zeros(0), r0)
+        return ScanResult(0.0, 0, 1.0, 1.0, 1.0, -math.inf, nb, 0, np.zeros(0), r0)
     cross = np.array([float(z @ r0) for z in zt])
     sq = np.array([float(z @ z) for z in zt])
     stat = 2.0 * cross - sq
@@ -328,10 +329,10 @@ def face_value_test(
     # the tail beyond the replicates: the best point's own normal null (its sd from cov)
     sd = math.sqrt(max(cov[best, best], 1e-300))
     p_tail = float(stats.norm.sf((t_obs + sq[best]) / sd))
-    p = min(p_emp, p_tail * len(zt)) if p_emp <= 1.5 / (1.0 + replicates) else p_emp
+    p = min(1.0, p_tail * len(zt)) if p_emp <= 1.5 / (1.0 + replicates) else p_emp
     z = float(stats.norm.isf(max(min(p, 1.0), 1e-300))) if p < 1.0 else -math.inf
     gain = cross[best] / sq[best] if sq[best] > 0.0 else 0.0
-    return TestResult(
+    return ScanResult(
         statistic=t_obs,
         best=best,
         p=p,

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .effects import Effect
-from .randomization import TestResult, Whitener, fit_whitener, scan_test, time_blocks
+from .randomization import ScanResult, Whitener, fit_whitener, scan_test, time_blocks
 
 
 @dataclass(frozen=True)
@@ -68,7 +68,7 @@ class EffectTest:
 
     effect: Effect
     relation: str
-    test: TestResult
+    test: ScanResult
     estimate: dict[str, float]  # candidate keys (and scan_key) -> value
     replay_estimate: dict[str, float]
 
