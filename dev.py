@@ -206,7 +206,12 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
                 Figure("peak memory (RSS)", "peak_rss_mb", "MB"),
                 Figure("section IX identification", "bench_identify.elapsed_s", "s"),
                 Figure(
-                    "diagnosis of a 12,500-sample recording (worst of 2)",
+                    "diagnosis of a 12,500-sample recording: evidence stage (worst of 2)",
+                    "bench_diagnose.worst_evidence_s",
+                    "s",
+                ),
+                Figure(
+                    "diagnosis of a 12,500-sample recording: whole (worst of 2)",
                     "bench_diagnose.worst_wall_s",
                     "s",
                 ),

@@ -300,9 +300,10 @@ def face_value_test(
     base residual), is the statistic, the largest over the scan. A residual that only
     resembles the signature in part — a misfit of the model's own loops that looks a little
     like a dead time — saves nothing at gain 1 (T < 0 for a fitted gain below 1/2), where a
-    free-gain test would still find the resemblance significant. Null: the residual's blocks
-    with Gaussian multipliers, as :func:`scan_test`. ``coefficients``: the free gain at the
-    best point (for the report)."""
+    free-gain test would still find the resemblance significant. H0: T_k <= 0 at every point;
+    at its boundary the statistic's error is 2·z̃·e, whose distribution (the largest over the
+    scan) comes from the residual's blocks with Gaussian multipliers, as in
+    :func:`scan_test`. ``coefficients``: the free gain at the best point (for the report)."""
     rows = blocks >= 0
     yv, bv, bl = y[rows], base[rows], blocks[rows]
     nb = int(bl.max()) + 1 if len(bl) else 0
@@ -323,12 +324,14 @@ def face_value_test(
     cov = 4.0 * (g.T @ g)
     evals, evecs = np.linalg.eigh(cov)
     root = evecs * np.sqrt(np.clip(evals, 0.0, None))
-    draws = rng.standard_normal((replicates, len(zt))) @ root.T - sq
+    # H0: the effect at its own size saves nothing (T_k <= 0 for every point); at the
+    # boundary T_k = 0 the estimate's error 2·z̃·e is normal with the block sums' covariance
+    draws = rng.standard_normal((replicates, len(zt))) @ root.T
     t_null = np.max(draws, axis=1)
     p_emp = (1.0 + float(np.sum(t_null >= t_obs))) / (1.0 + replicates)
     # the tail beyond the replicates: the best point's own normal null (its sd from cov)
     sd = math.sqrt(max(cov[best, best], 1e-300))
-    p_tail = float(stats.norm.sf((t_obs + sq[best]) / sd))
+    p_tail = float(stats.norm.sf(t_obs / sd))
     p = min(1.0, p_tail * len(zt)) if p_emp <= 1.5 / (1.0 + replicates) else p_emp
     z = float(stats.norm.isf(max(min(p, 1.0), 1e-300))) if p < 1.0 else -math.inf
     gain = cross[best] / sq[best] if sq[best] > 0.0 else 0.0
