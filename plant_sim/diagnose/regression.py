@@ -12,7 +12,7 @@ of the current model (:mod:`.replay`), and both are fitted with the same pre-whi
 (the recording's). What the estimator does to the signals (derivative smoothing, a torque
 sampled once per position cycle) then acts on both alike: the candidate's coefficients on the
 replay — where the model does not have the effect — are what the estimator alone produces, and
-the test asks whether the recording's coefficients differ from them (:func:`test_candidates`,
+the test asks whether the recording's coefficients differ from them (:func:`evaluate_candidates`,
 :mod:`.randomization` for the null). The base parameters are corrected the same way,
 θ = θ_recording − θ_replay + θ_model (one step of indirect inference: the value for which the
 estimator on the model's simulation would give what it gives on the recording).
@@ -164,7 +164,7 @@ def fit_relation(
     return Fitted(rec.name, keys, rec_vals, rep_vals, corrected, w, blocks, resid, valid, noise)
 
 
-def test_candidates(
+def evaluate_candidates(
     rec: Relation,
     reps: Sequence[Relation],
     fitted: Fitted,

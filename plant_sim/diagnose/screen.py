@@ -57,7 +57,7 @@ from .parameters import (
     options_for,
     uncertainty_box,
 )
-from .regression import Candidate, EffectTest, Fitted, Relation, fit_relation, test_candidates
+from .regression import Candidate, EffectTest, Fitted, Relation, evaluate_candidates, fit_relation
 from .replay import ReplayInput, like_recording, replay
 
 #: Effects tested through the loop (after the plant effects).
@@ -406,7 +406,7 @@ def _plant_tests(
         mine = [c for c in cands if c.relation == name]
         if mine:
             out.update(
-                test_candidates(rec, reps, rnd.fitted[name], mine, sim_cands[: len(reps)], rng)
+                evaluate_candidates(rec, reps, rnd.fitted[name], mine, sim_cands[: len(reps)], rng)
             )
     return out
 
@@ -438,7 +438,7 @@ def _conditional_p(
     extended = Relation(
         rec.name, rec.y, {**rec.columns, **{f"given {k}": v for k, v in cols.items()}}, rec.mask
     )
-    res = test_candidates(extended, [], fit_relation(extended), [cands[tested]], [], rng)
+    res = evaluate_candidates(extended, [], fit_relation(extended), [cands[tested]], [], rng)
     return res[tested].p if tested in res else 0.0
 
 
