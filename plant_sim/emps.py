@@ -38,6 +38,7 @@ The first three samples are dropped (dqm(k-1) needs qm(k-3)). Run as
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,8 +49,10 @@ import scipy.io
 from .errors import PlantSimError
 from .trace import MIN_ROWS, Trace, first_non_increasing
 
-#: The shared data directory of the project (``/work/shared/data/emps``).
-DATA_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "emps"
+#: Where the recordings are: ``$EMPS_DATA``, else ``shared/data/emps`` beside the repository.
+DATA_DIR = Path(
+    os.environ.get("EMPS_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data" / "emps"
+)
 ESTIMATION_FILE = "DATA_EMPS.mat"
 VALIDATION_FILE = "DATA_EMPS_PULSES.mat"
 

@@ -26,6 +26,7 @@ import math
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -63,7 +64,7 @@ from .results import (
 from .scoring import training_blocks
 from .screen import Screening, screen
 from .stages import Context
-from .unexplained import Where, where
+from .unexplained import local_misfit, where
 
 __all__ = [
     "COMPARED",
@@ -230,17 +231,18 @@ def _finish(ctx: Context, screening: Screening, loop: ClosedLoop) -> Diagnosis:
     fit_after = signal_fits(inp, sim_after)
     tests_final = residual_tests(final_res, kin)
     adequacy = assess(final_res, kin, labels, tests_final, fit_after)
-    unexplained: list[Where] = []
-    if not adequacy.adequate:
-        final_windows = find_windows(final_res, kin, labels)
-        unexplained = where(
-            final_res,
-            inp.time_s,
-            ctx.scales.speed,
-            ctx.scales.position,
-            final_windows,
-            tuple(s for s in inp.signals if s in adequacy.noise_ratio),
-        )
+    located = where(
+        final_res,
+        inp.time_s,
+        ctx.scales.speed,
+        ctx.scales.position,
+        find_windows(final_res, kin, labels),
+        tuple(s for s in inp.signals if s in adequacy.noise_ratio),
+    )
+    local = local_misfit(located)
+    if local:
+        adequacy = replace(adequacy, adequate=False, hints=[*adequacy.hints, *local])
+    unexplained = located if not adequacy.adequate else []
     notes = [*ctx.notes, *screening.notes, *loop.notes, *loop.swaps]
     for e, why in screening.not_tested.items():
         notes.append(f"{e.value} not tested: {why}")

@@ -301,9 +301,11 @@ def face_value_test(
     resembles the signature in part — a misfit of the model's own loops that looks a little
     like a dead time — saves nothing at gain 1 (T < 0 for a fitted gain below 1/2), where a
     free-gain test would still find the resemblance significant. H0: T_k <= 0 at every point;
-    at its boundary the statistic's error is 2·z̃·e, whose distribution (the largest over the
-    scan) comes from the residual's blocks with Gaussian multipliers, as in
-    :func:`scan_test`. ``coefficients``: the free gain at the best point (for the report)."""
+    at its boundary the saving's error is 2·z̃·e, normal with the covariance of its block sums
+    (e = r − z̃ of the most saving point, the blocks with Gaussian multipliers, as in
+    :func:`scan_test`). The statistic is studentised, max_k T_k / sd_k, its null the largest
+    of the correlated standard normals. ``best``: the point that saves most (the estimate);
+    ``coefficients``: the free gain there (for the report)."""
     rows = blocks >= 0
     yv, bv, bl = y[rows], base[rows], blocks[rows]
     nb = int(bl.max()) + 1 if len(bl) else 0
@@ -317,23 +319,29 @@ def face_value_test(
         return ScanResult(0.0, 0, 1.0, 1.0, 1.0, -math.inf, nb, 0, np.zeros(0), r0)
     cross = np.array([float(z @ r0) for z in zt])
     sq = np.array([float(z @ z) for z in zt])
-    stat = 2.0 * cross - sq
-    best = int(np.argmax(stat))
-    t_obs = float(stat[best])
-    g = np.stack([np.bincount(bl, z * r0, nb) for z in zt], axis=1)  # block sums of z·r
+    saved = 2.0 * cross - sq
+    # the noise: the residual with the most saving point's effect in at its own size
+    first = int(np.argmax(saved))
+    e1 = r0 - zt[first]
+    g = np.stack([np.bincount(bl, z * e1, nb) for z in zt], axis=1)  # block sums of z·e
     cov = 4.0 * (g.T @ g)
+    sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+    # studentised: each point's saving over its own noise (a long dead time has a large
+    # signature and a large noise projection; it must not set the scale of the others)
+    stat = saved / sd
+    t_obs = float(np.max(stat))
     evals, evecs = np.linalg.eigh(cov)
     root = evecs * np.sqrt(np.clip(evals, 0.0, None))
-    # H0: the effect at its own size saves nothing (T_k <= 0 for every point); at the
-    # boundary T_k = 0 the estimate's error 2·z̃·e is normal with the block sums' covariance
-    draws = rng.standard_normal((replicates, len(zt))) @ root.T
+    # H0: the effect at its own size saves nothing at any point (T_k <= 0); at its boundary
+    # the saving's error 2·z̃·e is normal with the block sums' covariance
+    draws = (rng.standard_normal((replicates, len(zt))) @ root.T) / sd
     t_null = np.max(draws, axis=1)
     p_emp = (1.0 + float(np.sum(t_null >= t_obs))) / (1.0 + replicates)
-    # the tail beyond the replicates: the best point's own normal null (its sd from cov)
-    sd = math.sqrt(max(cov[best, best], 1e-300))
-    p_tail = float(stats.norm.sf(t_obs / sd))
+    # beyond the replicates: the normal tail of the best point, Bonferroni over the scan
+    p_tail = float(stats.norm.sf(t_obs))
     p = min(1.0, p_tail * len(zt)) if p_emp <= 1.5 / (1.0 + replicates) else p_emp
     z = float(stats.norm.isf(max(min(p, 1.0), 1e-300))) if p < 1.0 else -math.inf
+    best = first
     gain = cross[best] / sq[best] if sq[best] > 0.0 else 0.0
     return ScanResult(
         statistic=t_obs,

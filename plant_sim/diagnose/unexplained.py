@@ -23,9 +23,16 @@ from scipy import signal as sps
 from .mismatch import MismatchWindow, white_noise_sigma
 
 #: Speed and position bins.
-BINS = 8
+BINS = 12
 #: A bin is listed when its RMS residual exceeds this many white-noise σ.
 RANGE_RATIO = 3.0
+#: "Far above the noise" in part of the recording: a speed or position range holding at least
+#: LOCAL_SHARE of the samples whose RMS residual exceeds LOCAL_RATIO times the white noise
+#: (the whole recording's RMS is judged against :data:`.adequacy.NOISE_RATIO_MAX`).
+LOCAL_RATIO = 5.0
+LOCAL_SHARE = 0.05
+#: Signals judged that way (a following error integrates every slow disturbance).
+LOCAL_SIGNALS = ("motor_speed", "motor_torque")
 #: A frequency is in the band when the residual's spectral density exceeds this many times
 #: the white-noise floor.
 BAND_RATIO = 10.0
@@ -37,6 +44,7 @@ class Range:
     high: float
     rms_over_noise: float
     share: float  # of the residual's mean square
+    samples: float  # share of the samples in the range
 
 
 @dataclass(frozen=True)
@@ -73,6 +81,7 @@ def _ranges(x: np.ndarray, r: np.ndarray, sigma: float) -> list[Range]:
                     float(edges[b + 1]),
                     rms / sigma,
                     float(np.sum(r[m] ** 2)) / total,
+                    float(m.mean()),
                 )
             )
     return out
@@ -118,4 +127,25 @@ def where(
                 band_hz=_band(r, dt, sigma),
             )
         )
+    return out
+
+
+def local_misfit(items: list[Where]) -> list[str]:
+    """Hints for each speed or torque residual that is far above the noise in part of the
+    recording (LOCAL_RATIO in a range of at least LOCAL_SHARE of the samples)."""
+    out = []
+    for w in items:
+        if w.signal not in LOCAL_SIGNALS:
+            continue
+        for kind, ranges in (("speed", w.speed_ranges), ("position", w.position_ranges)):
+            bad = [
+                r for r in ranges if r.rms_over_noise >= LOCAL_RATIO and r.samples >= LOCAL_SHARE
+            ]
+            if bad:
+                worst = max(bad, key=lambda r: r.rms_over_noise)
+                out.append(
+                    f"{w.signal} residual {worst.rms_over_noise:.3g} x the noise at {kind} "
+                    f"{worst.low:.4g}..{worst.high:.4g}: a {kind}-dependent effect the table "
+                    "lacks there"
+                )
     return out
