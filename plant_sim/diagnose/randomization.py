@@ -320,9 +320,10 @@ def face_value_test(
     cross = np.array([float(z @ r0) for z in zt])
     sq = np.array([float(z @ z) for z in zt])
     saved = 2.0 * cross - sq
-    # the noise: the residual with the most saving point's effect in at its own size
+    # the noise: the residual left by the most saving point's signature at its fitted gain
+    # (what the signature's shape does not explain is not counted as the effect's noise)
     first = int(np.argmax(saved))
-    e1 = r0 - zt[first]
+    e1 = r0 - (cross[first] / sq[first] if sq[first] > 0.0 else 0.0) * zt[first]
     g = np.stack([np.bincount(bl, z * e1, nb) for z in zt], axis=1)  # block sums of z·e
     cov = 4.0 * (g.T @ g)
     sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
