@@ -53,6 +53,7 @@ from .parameters import (
     max_antiresonance,
     options_for,
     parameter_for,
+    physical,
     uncertainty_box,
 )
 from .results import Score
@@ -167,8 +168,11 @@ def parameters_for_fit(
             lo, hi = ev.estimate - half, ev.estimate + half
             if p.log:
                 lo = max(lo, 1e-12 * abs(ev.estimate))
-            p = Parameter(k, lo, hi, value, p.scale, p.log)
-            source = "evidence (data sheet wrong)"
+            elif not physical(k, lo):
+                lo = max(lo, 0.0)
+            if lo < hi:
+                p = Parameter(k, lo, hi, value, p.scale, p.log)
+                source = "evidence (data sheet wrong)"
         elif k not in effect_keys:
             box = uncertainty_box(k, nominal)
             if box is not None and box[0] < box[1]:

@@ -131,6 +131,33 @@ def options_for(axis_max_wa: float | None, axis: AxisConfig) -> KernelOptions:
     return KernelOptions(substeps=max(1, math.ceil(wr * axis.control.speed_cycle / MAX_OMEGA_DT)))
 
 
+#: Keys whose value must be positive, and those that may be zero but not negative: an
+#: estimate outside is not physical (it says nothing about the data sheet).
+POSITIVE_KEYS = frozenset(
+    {
+        "mechanics.load_mass",
+        "mechanics.antiresonance",
+        "control.torque_limit",
+        "friction.stribeck_speed",
+        "disturbance.periodic_period",
+    }
+)
+
+
+def physical(key: str, value: float) -> bool:
+    """Whether ``value`` is a possible value of ``key`` (signed keys: any finite value)."""
+    if not math.isfinite(value):
+        return False
+    if key in POSITIVE_KEYS:
+        return value > 0.0
+    if key.startswith(("mechanics.", "friction.")) or key in (
+        "disturbance.periodic_amplitude",
+        "control.delay",
+    ):
+        return value >= 0.0
+    return True
+
+
 def parameter_for(
     key: str,
     value: float,
@@ -154,7 +181,10 @@ def parameter_for(
     if key == "mechanics.damping_ratio":
         n = ref or value
         if n > 0.0:
-            return Parameter(key, max(0.002, n / 5.0), min(1.0, 5.0 * n), value, n, log=True)
+            lo, hi = max(0.002, n / 5.0), min(1.0, 5.0 * n)
+            if not lo < hi:  # below the usual floor (an evidence estimate): its own factor 5
+                lo, hi = n / 5.0, 5.0 * n
+            return Parameter(key, lo, hi, value, n, log=True)
         return Parameter(key, 0.0, 0.5, value, 0.05)
     if key == "mechanics.backlash":
         b = max(0.01 * scales.following_error, 1e-9)

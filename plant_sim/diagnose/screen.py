@@ -55,6 +55,7 @@ from .parameters import (
     contact_antiresonance,
     max_antiresonance,
     options_for,
+    physical,
     uncertainty_box,
 )
 from .regression import Candidate, EffectTest, Fitted, Relation, evaluate_candidates, fit_relation
@@ -743,8 +744,15 @@ def screen(
             n = nominal.value(k)
             box = uncertainty_box(k, nominal)
             est = f.corrected[k]
-            beyond = box is not None and (
-                est + DATASHEET_SIGMAS * se[k] < box[0] or est - DATASHEET_SIGMAS * se[k] > box[1]
+            # a non-physical estimate (a negative mass) says the relation is inconsistent
+            # here, not that the data sheet is wrong
+            beyond = (
+                box is not None
+                and physical(k, est)
+                and (
+                    est + DATASHEET_SIGMAS * se[k] < box[0]
+                    or est - DATASHEET_SIGMAS * se[k] > box[1]
+                )
             )
             params.append(
                 ParameterEvidence(k, None if n is None else float(n), est, se[k], box, beyond, name)

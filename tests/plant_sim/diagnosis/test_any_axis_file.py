@@ -236,3 +236,22 @@ def test_bad_input_gets_one_line_and_exit_2(
     assert code == 2, err
     assert len(errors) == 1 and "Traceback" not in err, err
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_extreme_evidence_gives_valid_bounds() -> None:
+    """Found by the reported matrices (docs/diagnosis.md, "Protocol"): an evidence estimate
+    of a damping ratio below the usual floor, a negative mass, a negative viscous friction
+    gave invalid bounds or an invalid axis. A damping ratio keeps its own factor 5; a
+    non-physical estimate never says the data sheet is wrong."""
+    from types import SimpleNamespace
+
+    from plant_sim.diagnose.parameters import parameter_for, physical
+
+    axis = _lumped_rigid()
+    scales = SimpleNamespace(torque_peak=100.0, speed_max=1.0)
+    p = parameter_for("mechanics.damping_ratio", 1.7e-4, scales, axis, axis)  # type: ignore[arg-type]
+    assert p.low < 1.7e-4 < p.high
+    assert not physical("mechanics.load_mass", -1.8)
+    assert not physical("friction.viscous", -0.14)
+    assert physical("friction.viscous", 0.0)
+    assert physical("disturbance.constant_torque", -3.0)
