@@ -270,10 +270,19 @@ def closed_loop(ctx: Context, screening: Screening, pool: Executor | None = None
         base = _fit_model(
             ctx, "the nominal within its data sheet", base_axis, (), screening, obj, scorer, pool
         )
-    final = base
     alternatives: list[ModelFit] = []
     swaps: list[str] = []
     notes: list[str] = []
+    if not named and base.heldout.cost > nominal_mf.heldout.cost:
+        # the held-out data decide: a re-fit that fits the training data better and
+        # predicts the held-out data worse is not kept
+        notes.append(
+            "the re-fit within the data sheet predicts the held-out data worse than the "
+            f"nominal as given ({nominal_mf.heldout.cost:.4g} -> {base.heldout.cost:.4g}): "
+            "the nominal's values are kept"
+        )
+        base = nominal_mf
+    final = base
     if named:
         ctx.stage("closed loop: the model with the named effects")
         final = _fit_model(
