@@ -186,6 +186,7 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
             "diagnosis/report.json",
             (
                 Figure("EMPS diagnosis: time of the diagnosis", "timings_s.total", "s"),
+                Figure("EMPS diagnosis: its evidence stage", "timings_s.evidence", "s"),
                 Figure(
                     "EMPS diagnosis: torque fit, fitted model",
                     "fit_after.motor_torque.fit_percent",

@@ -224,7 +224,8 @@ def scan_test(
         qs.append(q)
         stats_.append(float(np.sum((q.T @ (r0 - off)) ** 2)) if q.shape[1] else 0.0)
     if not qs or nb < 2:
-        return ScanResult(0.0, 0, 1.0, 1.0, 1.0, -math.inf, nb, 0, np.zeros(0), r0)
+        width = candidates[0].shape[1] if candidates and candidates[0].ndim == 2 else 1
+        return ScanResult(0.0, 0, 1.0, 1.0, 1.0, -math.inf, nb, 0, np.zeros(width), r0)
     best = int(np.argmax(stats_))
     t_obs = stats_[best]
     qb = qs[best]
@@ -316,7 +317,7 @@ def face_value_test(
         zv = z[rows]
         zt.append(zv - q0 @ (q0.T @ zv))
     if not zt or nb < 2:
-        return ScanResult(0.0, 0, 1.0, 1.0, 1.0, -math.inf, nb, 0, np.zeros(0), r0)
+        return ScanResult(0.0, 0, 1.0, 1.0, 1.0, -math.inf, nb, 0, np.zeros(1), r0)
     cross = np.array([float(z @ r0) for z in zt])
     sq = np.array([float(z @ z) for z in zt])
     saved = 2.0 * cross - sq

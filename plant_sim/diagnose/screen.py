@@ -45,6 +45,7 @@ from ..trace import Trace
 from . import deflection as dfl
 from . import idim
 from .effects import MODELS, Effect, effects_in
+from .errors import DiagnosisInputError
 from .evidence import DataScales, data_scales
 from .fit import PERIODIC_COS, PERIODIC_SIN
 from .loop_tests import NAME as LOOP_NAME
@@ -313,6 +314,10 @@ class _Round:
     sim_forces: list[np.ndarray]
 
 
+class _Unstable(Exception):
+    """The closed-loop replay of a model diverged (non-finite signals)."""
+
+
 def _kernel_options(model: AxisConfig) -> KernelOptions:
     return options_for(model.mechanics.antiresonance, model)
 
@@ -332,6 +337,9 @@ def _calibrate(
     relation on the recording and on the draws (the deflection with the load-side force of
     the calibrated torque balance; ``contact``: :func:`.deflection.deflection_relation`)."""
     sim = replay(model, inp, _kernel_options(model))
+    used = ("motor_position", "load_position", "motor_speed", "motor_torque")
+    if not all(np.all(np.isfinite(sim[c])) for c in used if c in sim.names):
+        raise _Unstable(model)
     like = like_recording(inp, sim)
     noise = measurement_noise(recording, like)
     rng = np.random.default_rng(seed)
@@ -624,15 +632,7 @@ def screen(
     loop_left = set(candidates & LOOP_EFFECTS)
     if Effect.BACKLASH in candidates and not m_rec.two_systems:
         loop_left.add(Effect.BACKLASH)
-    rnd = _calibrate(
-        inp, recording, m_rec, model, scans, seed, frozenset(remaining), _contact(named, nominal)
-    )
-    n_replays = 1
-    # the model's own parameters where the evidence puts them (within their data-sheet
-    # uncertainty) before anything is tested through the loop
-    moved = _safe(model, _base_update(rnd, model, nominal))
-    if moved != model:
-        model = moved
+    try:
         rnd = _calibrate(
             inp,
             recording,
@@ -643,7 +643,35 @@ def screen(
             frozenset(remaining),
             _contact(named, nominal),
         )
+    except _Unstable:
+        raise DiagnosisInputError(
+            "the axis file's closed loop diverges when replayed like the recording "
+            "(check the controller keys and the units)"
+        ) from None
+    n_replays = 1
+    # the model's own parameters where the evidence puts them (within their data-sheet
+    # uncertainty) before anything is tested through the loop
+    moved = _safe(model, _base_update(rnd, model, nominal))
+    if moved != model:
         n_replays += 1
+        try:
+            rnd_moved = _calibrate(
+                inp,
+                recording,
+                m_rec,
+                moved,
+                scans,
+                seed,
+                frozenset(remaining),
+                _contact(named, nominal),
+            )
+        except _Unstable:
+            notes.append(
+                "the model's parameters at the evidence's values make the closed loop unstable; "
+                "they stay at the data sheet's"
+            )
+        else:
+            model, rnd = moved, rnd_moved
     loop_model: AxisConfig | None = None
     loop_pending = False
     rnd_no = 0
@@ -677,22 +705,26 @@ def screen(
             lead = max(loop_sig, key=lambda t: t.z)
             vals_l, _ = effect_values(lead.effect, lead.estimate, model)
             trial = _safe(model, vals_l)
-            rnd_l = _calibrate(
-                inp,
-                recording,
-                m_rec,
-                trial,
-                scans,
-                seed,
-                frozenset(remaining),
-                _contact(named, nominal),
-            )
             n_replays += 1
-            again = _plant_tests(
-                rnd_l, m_rec, trial, scans, frozenset(t.effect for t in plant_sig), rng
-            )
-            left, _ = _judge(again, trial, alpha_each, rnd_no, data)
-            sig = [lead] if not left else plant_sig
+            try:
+                rnd_l = _calibrate(
+                    inp,
+                    recording,
+                    m_rec,
+                    trial,
+                    scans,
+                    seed,
+                    frozenset(remaining),
+                    _contact(named, nominal),
+                )
+            except _Unstable:
+                sig = plant_sig  # the loop effect at its estimate explains nothing
+            else:
+                again = _plant_tests(
+                    rnd_l, m_rec, trial, scans, frozenset(t.effect for t in plant_sig), rng
+                )
+                left, _ = _judge(again, trial, alpha_each, rnd_no, data)
+                sig = [lead] if not left else plant_sig
         best, amb = _choose(sig, rnd, m_rec, model, scans, alpha_each, rng)
         best = _refine(best, rnd, m_rec, model, scans)
         vals, _ = effect_values(best.effect, best.estimate, model)
@@ -702,6 +734,25 @@ def screen(
         if any(new_model.value(k) != v for k, v in vals.items()):
             notes.append(f"{best.effect.value}: its estimate gives no valid axis; not named")
             continue
+        try:
+            new_rnd = _calibrate(
+                inp,
+                recording,
+                m_rec,
+                new_model,
+                scans,
+                seed,
+                frozenset(remaining - {b for _, b in amb}),
+                _contact([*named, best.effect], nominal),
+            )
+        except _Unstable:
+            notes.append(
+                f"{best.effect.value}: the model with its estimate is unstable in closed loop; "
+                "not named"
+            )
+            continue
+        finally:
+            n_replays += 1
         ambiguous += amb
         for _, b in amb:
             remaining.discard(b)
@@ -715,17 +766,7 @@ def screen(
             else v
             for v in verdicts
         ]
-        rnd = _calibrate(
-            inp,
-            recording,
-            m_rec,
-            model,
-            scans,
-            seed,
-            frozenset(remaining),
-            _contact(named, nominal),
-        )
-        n_replays += 1
+        rnd = new_rnd
     # final calibration: every parameter of the model as the evidence estimates it
     params: list[ParameterEvidence] = []
     relations_info: dict[str, dict[str, float]] = {}

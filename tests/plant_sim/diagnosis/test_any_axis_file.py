@@ -7,6 +7,7 @@ CLI), never another exception. And bad input gets one line and exit 2."""
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,8 @@ from plant_sim.model import KernelOptions
 from plant_sim.simulate import References, simulate
 from plant_sim.trace import Trace
 
-N_AXES = 24
+#: Axis files drawn (``DIAG_FUZZ_AXES`` for a longer run: docs/diagnosis.md used 150).
+N_AXES = int(os.environ.get("DIAG_FUZZ_AXES", "24"))
 
 
 def _maybe(rng: np.random.Generator, p: float, value: float) -> float | None:
