@@ -251,6 +251,7 @@ def _check_soft_loop(
         if (
             model is None
             or not np.isfinite(model)
+            or model == 0.0
             or abs(model / expected - 1.0) <= RATIO_TOLERANCE
             or not 1.0 / SOFT_LOOP_FACTOR <= ratio / model <= SOFT_LOOP_FACTOR
         ):
