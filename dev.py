@@ -434,6 +434,7 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
             "diagnosis/report.json",
             (
                 Figure("EMPS diagnosis: time of the diagnosis", "timings_s.total", "s"),
+                Figure("EMPS diagnosis: its evidence stage", "timings_s.evidence", "s"),
                 Figure(
                     "EMPS diagnosis: torque fit, fitted model",
                     "fit_after.motor_torque.fit_percent",
@@ -454,7 +455,12 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
                 Figure("peak memory (RSS)", "peak_rss_mb", "MB"),
                 Figure("section IX identification", "bench_identify.elapsed_s", "s"),
                 Figure(
-                    "diagnosis of a 12,500-sample recording (worst of 2)",
+                    "diagnosis of a 12,500-sample recording: evidence stage (worst of 2)",
+                    "bench_diagnose.worst_evidence_s",
+                    "s",
+                ),
+                Figure(
+                    "diagnosis of a 12,500-sample recording: whole (worst of 2)",
                     "bench_diagnose.worst_wall_s",
                     "s",
                 ),

@@ -40,24 +40,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--validate",
         nargs="+",
         metavar="SECOND.csv",
-        help="one or more other recordings of the same axis to score every re-fit and "
-        "candidate on (default: held-out blocks of the first)",
+        help="one or more other recordings of the same axis to score the fitted models on "
+        "and decide between ambiguous explanations (default: held-out blocks of the first)",
     )
     parser.add_argument(
-        "--alpha", type=float, default=1e-3, help="significance level per candidate (0.001)"
+        "--alpha",
+        type=float,
+        default=0.01,
+        help="false-alarm rate per recording of the evidence stage, divided among the effects "
+        "tested (0.01)",
     )
     parser.add_argument(
         "--choice-alpha",
         type=float,
         default=0.05,
-        help="level at which an ambiguous effect with more parameters is named over one with "
-        "fewer (0.05; at least --alpha)",
+        help="level at which the held-out data name an ambiguous alternative over the "
+        "evidence's choice (0.05)",
     )
     parser.add_argument(
         "--min-improvement",
         type=float,
         default=0.5,
-        help="least held-out cost reduction to name an effect, per cent (0.5)",
+        help="least held-out cost reduction for that choice, per cent (0.5)",
     )
     parser.add_argument(
         "--max-effects", type=int, default=3, help="most effects named (rounds of selection, 3)"
@@ -69,8 +73,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=[e.value for e in Effect],
         help="only try these effects (default: every effect of the axis-file table)",
     )
-    parser.add_argument("--jobs", type=int, default=2, help="parallel candidate fits (2)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the global search stage")
+    parser.add_argument("--jobs", type=int, default=2, help="simulations in parallel (2)")
+    parser.add_argument(
+        "--seed", type=int, default=0, help="seed of the bootstrap and of the replays' noise"
+    )
     cli.add_quiet(parser)
     parser.add_argument("--no-progress", action="store_true", help="the same as --quiet")
 
@@ -107,16 +113,24 @@ def run(args: argparse.Namespace) -> int:
     )
     print(f"left out: {left}")
     if not diagnosis.adequacy.adequate:
-        print("the model class does not explain this recording (see report.json: adequacy)")
-    for x in diagnosis.suspects:
         print(
-            f"sign of missing physics: {x.key} {x.nominal:.6g} -> {x.fitted:.6g}"
-            + (f" (on its {x.on_bound} bound)" if x.on_bound else "")
+            "unexplained, here: the model class does not explain this recording "
+            "(report.json: adequacy, unexplained)"
         )
+    for x in diagnosis.datasheet:
+        if x.datasheet_wrong:
+            print(
+                f"data sheet wrong: {x.key} {x.nominal:.6g} {x.unit}, evidence "
+                f"{x.evidence:.6g} ± {x.standard_error:.2g}"
+            )
     print(f"simulation fit (nominal -> fitted): {fits}")
     for a in diagnosis.ambiguous:
         print(f"ambiguous: {a.named.value} or {a.alternative.value}; to tell: {a.experiment}")
-    print(f"took {diagnosis.timings_s['total']:.1f} s, {diagnosis.n_simulations} simulations")
+    t = diagnosis.timings_s
+    print(
+        f"took {t['total']:.1f} s (evidence {t['evidence']:.1f} s), "
+        f"{diagnosis.n_simulations} simulations"
+    )
     written = [name for name in REPORT_FILES if (out / name).exists()]
     print(f"wrote {out}/: " + ", ".join(written))
     return 0

@@ -1,6 +1,6 @@
-"""``python -m plant_sim matrix [--plant kernel|independent] [--seed 2] [--out DIR] ...``.
+"""``python -m plant_sim matrix [--plant kernel|independent|third] [--seed 2] [--out DIR] ...``.
 
-Runs the diagnosis on the concealed test set (:func:`plant_sim.diagnosis.synthetic.test_set`)
+Runs the diagnosis on the plant's concealed test set
 and prints the markdown tables of :mod:`plant_sim.diagnosis.matrix` (confusion matrix,
 per-case results, timings). The full set takes several minutes (one diagnosis per case).
 """
@@ -23,7 +23,6 @@ from ..diagnosis.matrix import (
     load_plant,
     run_matrix,
 )
-from ..diagnosis.synthetic import test_set
 
 NAME = "matrix"
 HELP = "confusion matrix of the diagnosis on the concealed test set (several minutes)"
@@ -34,8 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--plant",
         choices=sorted(PLANTS),
         default="kernel",
-        help="plant that makes the recordings: kernel (this package's, default) or "
-        "independent (the test suite's independently written plant)",
+        help="plant that makes the recordings: kernel (this package's, default), independent "
+        "or third (the test suite's independently written plants; third has its own test set)",
     )
     parser.add_argument(
         "--out", type=Path, help="also write DIR/matrix_<plant>_seed<S>.md and .jsonl"
@@ -64,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
         if args.json is None:
             args.json = args.out / f"matrix_{args.plant}_seed{args.seed}.jsonl"
-    cases = test_set(seed=args.seed, duration_s=args.duration)
+    cases = plant.cases(args.seed, args.duration)
     if args.cases:
         known = {c.name for c in cases}
         unknown = [n for n in args.cases if n not in known]

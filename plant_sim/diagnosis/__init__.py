@@ -20,8 +20,9 @@ See docs/diagnosis.md.
 """
 
 from .effects import Effect
-from .engine import Diagnosis, DiagnosisOptions, diagnose
+from .engine import DiagnosisOptions, diagnose
 from .errors import DiagnosisInputError, DiagnosisOptionError
+from .outcome import Diagnosis
 from .replay import simulate_like
 from .report import write_report
 

@@ -1,41 +1,25 @@
 """The physical effects of the axis-file table as objects: one class per effect knows its
-axis-file keys, when a model has it, how to take it out of an axis, how to add it to a model
-(its free parameters, their bounds and data-derived starting values), when a fitted value is
-"absent" after all, and how to describe it with the axis's units.
+axis-file keys, when a model has it, how to take it out of an axis (the concealed test set),
+when a value is its "absent" value after all, and how to describe it with the axis's units;
+and which experiment tells two effects apart that explain the same signature.
 
 Names and keys are the table of ``docs/axis-file.md`` plus ``sensor_time_offset``
 (``control.sensor_time_offset``, docs/diagnosis.md). An effect is *in* a model when one of its
-keys is present; the diagnosis (:mod:`.engine`) loops over :data:`MODELS` and tries every
-effect the model lacks. Bounds come from :func:`.parameters.parameter_for`; :mod:`.fit` only
-searches.
+keys is present; the evidence stage (:mod:`.screen`) tests every effect the model lacks, with
+the regressors of :mod:`.idim`, :mod:`.deflection` and :mod:`.loop_tests`.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from enum import Enum
 from typing import ClassVar
 
-import numpy as np
-
 from virtual_bus.formats.axis import AxisConfig
 
-from ..physics.kernel import MAX_DELAY
-from .evidence import DataScales, Evidence, direction_offset, inverse_dynamics, periodic_peaks
-from .fit import PERIODIC_COS, PERIODIC_SIN, DiscreteParameter, FitSpec, Parameter
+from .evidence import DataScales
 from .parameters import (
-    CONTACT_DAMPING,
-    contact_antiresonance,
     format_value,
-    max_antiresonance,
-    options_for,
-    parameter_for,
-    rounded,
-    speed_loop_bandwidth,
 )
-from .replay import replay
 
 
 class Effect(Enum):
@@ -54,35 +38,9 @@ class Effect(Enum):
     SENSOR_TIME_OFFSET = "sensor_time_offset"
 
 
-@dataclass(frozen=True)
-class Candidate:
-    """How to add an effect to a model: alternative fit specifications (the best wins) and
-    notes for the report (a stiff contact added with it, why it was not tried)."""
-
-    specs: list[FitSpec]
-    notes: list[str] = field(default_factory=list)
-
-
-def _spec(
-    on: AxisConfig,
-    params: Sequence[Parameter],
-    starts: Sequence[Mapping[str, float]] = (),
-    n_global: int = 4,
-    discrete: DiscreteParameter | None = None,
-) -> FitSpec:
-    wa = next((p.high for p in params if p.key == "mechanics.antiresonance"), None)
-    return FitSpec(
-        base=on,
-        parameters=tuple(params),
-        extra_starts=tuple(starts),
-        discrete=discrete,
-        options=options_for(wa if wa is not None else on.mechanics.antiresonance, on),
-        n_global=n_global if params else 0,
-    )
-
-
 class EffectModel:
-    """One effect of the table. Subclasses set the class attributes and :meth:`candidate`."""
+    """One effect of the table. Subclasses set the class attributes and, where the effect has
+    an "absent" value, :meth:`significant`."""
 
     effect: ClassVar[Effect]
     keys: ClassVar[tuple[str, ...]]
@@ -104,15 +62,6 @@ class EffectModel:
         torque, ...): a held-out gain then came from the re-fitted model parameters, not from
         the effect. Thresholds: 0.1 % of the recording's peak torque."""
         return True
-
-    def candidate(
-        self, model: AxisConfig, nominal: AxisConfig, ev: Evidence, n_global: int
-    ) -> Candidate:
-        raise NotImplementedError
-
-    def fixed_after_naming(self, before: AxisConfig) -> tuple[str, ...]:
-        """Keys the candidate added without fitting them (held fixed afterwards)."""
-        return ()
 
     def describe(self, axis: AxisConfig) -> str:
         """'mechanics.backlash = 0.00028 m' for the keys ``axis`` has."""
@@ -136,41 +85,6 @@ class Backlash(EffectModel):
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         return (fitted.mechanics.backlash or 0.0) > 1e-3 * scales.following_error
 
-    def candidate(
-        self, model: AxisConfig, nominal: AxisConfig, ev: Evidence, n_global: int
-    ) -> Candidate:
-        """Backlash on a rigid model needs a contact stiffness: a stiff antiresonance (ten
-        times the speed-loop bandwidth, damping 0.1) is added with it and not fitted."""
-        sc, rec, sim = ev.scales, ev.inp.recorded, ev.simulated
-        notes: list[str] = []
-        on = model
-        if model.is_rigid:
-            wa = contact_antiresonance(model)
-            on = model.with_values(
-                {"mechanics.antiresonance": wa, "mechanics.damping_ratio": CONTACT_DAMPING}
-            )
-            notes.append(
-                f"backlash needs a contact stiffness: a stiff mechanics.antiresonance = "
-                f"{rounded(wa)!r} rad/s (ten times the speed-loop bandwidth) with "
-                f"damping_ratio = {CONTACT_DAMPING} was added with it and not fitted"
-            )
-        guesses = [0.002 * sc.following_error, 0.02 * sc.following_error]
-        if "motor_position" in rec and "load_position" in rec:
-            kr = model.transmission_ratio
-            defl_rec = rec["motor_position"] / kr - rec["load_position"]
-            defl_sim = sim["motor_position"] / kr - sim["load_position"]
-            d = direction_offset(defl_rec - defl_sim, sc.speed, sc.speed_max)
-            if d is not None and d > 0.0:
-                guesses.insert(0, d)
-        b = parameter_for("mechanics.backlash", guesses[0], sc, nominal, on)
-        starts = [{"mechanics.backlash": g} for g in guesses[1:]]
-        return Candidate([_spec(on, [b], starts, n_global)], notes)
-
-    def fixed_after_naming(self, before: AxisConfig) -> tuple[str, ...]:
-        if before.is_rigid:
-            return ("mechanics.antiresonance", "mechanics.damping_ratio")
-        return ()
-
 
 class Compliance(EffectModel):
     effect = Effect.COMPLIANCE
@@ -181,64 +95,8 @@ class Compliance(EffectModel):
         # backlash needs the contact stiffness of the elastic element: it goes with it
         return axis.with_values({**dict.fromkeys(self.keys), "mechanics.backlash": None})
 
-    def candidate(
-        self, model: AxisConfig, nominal: AxisConfig, ev: Evidence, n_global: int
-    ) -> Candidate:
-        """Starts: 1.5 and 4 times the speed-loop bandwidth, and the stiffness from the
-        deflection against the transmitted force when both positions are recorded."""
-        sc, rec = ev.scales, ev.inp.recorded
-        kr = model.transmission_ratio
-        wmax = max_antiresonance(model)
-        bw = speed_loop_bandwidth(model)
-        guesses = [min(wmax, f * bw) for f in (1.5, 4.0)]
-        if "motor_position" in rec and "load_position" in rec:
-            defl = rec["motor_position"] / kr - rec["load_position"]
-            force = kr * (rec["motor_torque"] - model.motor_side_inertia * kr * sc.accel)
-            f0 = force - force.mean()
-            denom = float(f0 @ f0)
-            slope = float(f0 @ (defl - defl.mean())) / denom if denom > 0 else 0.0
-            if slope > 0.0:
-                wa = math.sqrt(1.0 / slope / model.mechanics.load_mass)
-                guesses.insert(0, min(wmax * 0.99, max(wa, 2.0 * model.control.kv)))
-        lo = max(2.0 * model.control.kv, 0.1 * bw)
-        if not lo < wmax:
-            # e.g. all inertia lumped into the load (motor_inertia a placeholder): an elastic
-            # element would resonate beyond what the kernel integrates at this speed cycle
-            return Candidate(
-                [],
-                [
-                    f"compliance not tried: with this inertia split an elastic element needs "
-                    f"omega_a in [{lo:.3g}, {wmax:.3g}] rad/s, an empty range (give "
-                    f"mechanics.motor_inertia its real value to test compliance)"
-                ],
-            )
-        wa_p = Parameter("mechanics.antiresonance", lo, wmax, guesses[0], guesses[0], log=True)
-        xi_p = Parameter("mechanics.damping_ratio", 0.005, 0.7, 0.05, 0.05, log=True)
-        on = model.with_values(
-            {"mechanics.antiresonance": guesses[0], "mechanics.damping_ratio": 0.05}
-        )
-        starts = [{"mechanics.antiresonance": g} for g in guesses[1:]]
-        return Candidate([_spec(on, [wa_p, xi_p], starts, n_global)])
 
-
-class _SingleTorque(EffectModel):
-    """An effect with one torque-law key started from the inverse-dynamics regression."""
-
-    def candidate(
-        self, model: AxisConfig, nominal: AxisConfig, ev: Evidence, n_global: int
-    ) -> Candidate:
-        sc = ev.scales
-        key = self.keys[0]
-        guess = inverse_dynamics(ev.inp, model, sc).get(key, 0.0)
-        guess = self._start(guess, ev)
-        par = parameter_for(key, guess, sc, nominal, model)
-        return Candidate([_spec(model, [par], [{key: 0.0}], n_global)])
-
-    def _start(self, guess: float, ev: Evidence) -> float:
-        return guess if guess > 0.0 else 0.02 * ev.scales.torque_peak
-
-
-class CoulombFriction(_SingleTorque):
+class CoulombFriction(EffectModel):
     effect = Effect.COULOMB_FRICTION
     keys = ("friction.coulomb",)
     description = "a friction torque of constant size opposing the motion"
@@ -247,7 +105,7 @@ class CoulombFriction(_SingleTorque):
         return (fitted.friction.coulomb or 0.0) > _tiny(scales)
 
 
-class ViscousFriction(_SingleTorque):
+class ViscousFriction(EffectModel):
     effect = Effect.VISCOUS_FRICTION
     keys = ("friction.viscous",)
     description = "a friction torque growing with speed"
@@ -255,12 +113,8 @@ class ViscousFriction(_SingleTorque):
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         return (fitted.friction.viscous or 0.0) * scales.speed_max > _tiny(scales)
 
-    def _start(self, guess: float, ev: Evidence) -> float:
-        sc = ev.scales
-        return guess if guess > 0.0 else 0.02 * sc.torque_peak / sc.speed_max
 
-
-class ConstantLoadTorque(_SingleTorque):
+class ConstantLoadTorque(EffectModel):
     effect = Effect.CONSTANT_LOAD_TORQUE
     keys = ("disturbance.constant_torque",)
     description = (
@@ -270,13 +124,6 @@ class ConstantLoadTorque(_SingleTorque):
 
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         return abs(fitted.disturbance.constant_torque or 0.0) > _tiny(scales)
-
-    def _start(self, guess: float, ev: Evidence) -> float:
-        """The median torque residual while moving (signed)."""
-        sc = ev.scales
-        res = ev.inp.recorded["motor_torque"] - ev.simulated["motor_torque"]
-        moving = res[np.abs(sc.speed) > 0.05 * sc.speed_max]
-        return float(np.median(moving)) if len(moving) else guess
 
 
 class AsymmetricFriction(EffectModel):
@@ -290,21 +137,6 @@ class AsymmetricFriction(EffectModel):
         dv = abs((f.viscous_negative or 0.0) - (f.viscous or 0.0)) * scales.speed_max
         return max(dc, dv) > _tiny(scales)
 
-    def candidate(
-        self, model: AxisConfig, nominal: AxisConfig, ev: Evidence, n_global: int
-    ) -> Candidate:
-        """Start: the negative direction's friction lowered by the direction offset of the
-        torque residual (residual higher moving + than moving −)."""
-        sc = ev.scales
-        res = ev.inp.recorded["motor_torque"] - ev.simulated["motor_torque"]
-        c = model.friction.coulomb or 0.0
-        b = model.friction.viscous or 0.0
-        d = direction_offset(res, sc.speed, sc.speed_max) or 0.0
-        pc = parameter_for("friction.coulomb_negative", max(0.0, c - d), sc, nominal, model)
-        pv = parameter_for("friction.viscous_negative", b, sc, nominal, model)
-        starts = [{"friction.coulomb_negative": c, "friction.viscous_negative": b}]
-        return Candidate([_spec(model, [pc, pv], starts, n_global)])
-
 
 class StribeckFriction(EffectModel):
     effect = Effect.STRIBECK_FRICTION
@@ -313,19 +145,6 @@ class StribeckFriction(EffectModel):
 
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         return (fitted.friction.stribeck or 0.0) > _tiny(scales)
-
-    def candidate(
-        self, model: AxisConfig, nominal: AxisConfig, ev: Evidence, n_global: int
-    ) -> Candidate:
-        """Starts: half the Coulomb friction, Stribeck speed on a log grid of the top speed."""
-        sc = ev.scales
-        c = model.friction.coulomb or 0.0
-        ps = parameter_for(
-            "friction.stribeck", max(0.5 * c, 0.02 * sc.torque_peak), sc, nominal, model
-        )
-        pv = parameter_for("friction.stribeck_speed", 0.02 * sc.speed_max, sc, nominal, model)
-        starts = [{"friction.stribeck_speed": f * sc.speed_max} for f in (0.005, 0.1)]
-        return Candidate([_spec(model, [ps, pv], starts, n_global)])
 
 
 class PeriodicDisturbance(EffectModel):
@@ -340,30 +159,6 @@ class PeriodicDisturbance(EffectModel):
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         return (fitted.disturbance.periodic_amplitude or 0.0) > _tiny(scales)
 
-    def candidate(
-        self, model: AxisConfig, nominal: AxisConfig, ev: Evidence, n_global: int
-    ) -> Candidate:
-        """One alternative per peak of the torque residual's spectrum over position."""
-        sc = ev.scales
-        res = ev.inp.recorded["motor_torque"] - ev.simulated["motor_torque"]
-        specs = []
-        for period, a, b in periodic_peaks(res, sc):
-            on = model.with_values(
-                {
-                    "disturbance.periodic_amplitude": 0.0,
-                    "disturbance.periodic_period": period,
-                    "disturbance.periodic_phase": 0.0,
-                }
-            )
-            params = [
-                parameter_for(PERIODIC_COS, a, sc, nominal, on),
-                parameter_for(PERIODIC_SIN, b, sc, nominal, on),
-                parameter_for("disturbance.periodic_period", period, sc, nominal, on),
-            ]
-            specs.append(_spec(on, params, [], n_global))
-        notes = [] if specs else ["periodic_disturbance not tried: too little travel"]
-        return Candidate(specs, notes)
-
 
 class TorqueSaturation(EffectModel):
     effect = Effect.TORQUE_SATURATION
@@ -371,36 +166,11 @@ class TorqueSaturation(EffectModel):
     description = "a torque limit that clips the fastest accelerations"
     refit_keys = ("control.torque_limit",)
 
-    def candidate(
-        self, model: AxisConfig, nominal: AxisConfig, ev: Evidence, n_global: int
-    ) -> Candidate:
-        """Starts: the recorded peak torque and its 99.9th percentile."""
-        sc = ev.scales
-        par = parameter_for("control.torque_limit", sc.torque_max, sc, nominal, model)
-        pct = float(np.percentile(np.abs(ev.inp.recorded["motor_torque"]), 99.9))
-        return Candidate([_spec(model, [par], [{"control.torque_limit": pct}], n_global)])
-
 
 class TimeDelay(EffectModel):
     effect = Effect.TIME_DELAY
     keys = ("control.delay",)
     description = "a dead time between the speed controller and the torque"
-
-    def candidate(
-        self, model: AxisConfig, nominal: AxisConfig, ev: Evidence, n_global: int
-    ) -> Candidate:
-        """Discrete in the kernel (whole speed cycles): profiled over a grid up to 0.1 s."""
-        cyc = model.control.speed_cycle
-        grid = [n * cyc for n in (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 24, 32) if n <= MAX_DELAY]
-        grid = [g for g in grid if g <= 0.1]
-        if not grid:
-            return Candidate([], [f"time_delay not tried: speed cycle {cyc:g} s > 0.1 s"])
-        disc = DiscreteParameter("control.delay", tuple(grid), grid[0])
-        return Candidate([_spec(model, [], [], 0, disc)])
-
-
-#: Largest sensor time offset tried, in position cycles (the key allows ±0.05 s).
-MAX_OFFSET_CYCLES = 20
 
 
 class SensorTimeOffset(EffectModel):
@@ -415,31 +185,6 @@ class SensorTimeOffset(EffectModel):
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         value = fitted.value("control.sensor_time_offset") or 0.0
         return abs(value) > 0.05 * scales.sample_time_s
-
-    def candidate(
-        self, model: AxisConfig, nominal: AxisConfig, ev: Evidence, n_global: int
-    ) -> Candidate:
-        """Needs both positions recorded; bounded to ±20 position cycles; starts at ±1 and
-        ±3 cycles."""
-        rec = ev.inp.recorded
-        if "motor_position" not in rec or "load_position" not in rec:
-            return Candidate(
-                [], ["sensor_time_offset not tried: needs motor_position and load_position"]
-            )
-        cyc = model.control.position_cycle
-        lim = min(0.05, MAX_OFFSET_CYCLES * cyc)
-        key = "control.sensor_time_offset"
-        on = model.with_values({key: 0.0})
-        opts = options_for(model.mechanics.antiresonance, model)
-        probe = replay(model.with_values({key: 3.0 * cyc}), ev.inp, opts, ("load_position",))
-        if np.array_equal(probe["load_position"], replay(on, ev.inp, opts)["load_position"]):
-            return Candidate(
-                [],
-                ["sensor_time_offset not tried: the simulator ignores control.sensor_time_offset"],
-            )
-        par = Parameter(key, -lim, lim, cyc, cyc)
-        starts = [{key: f * cyc} for f in (-1.0, 3.0, -3.0)]
-        return Candidate([_spec(on, [par], starts, 0)])
 
 
 #: Every effect of the table, in the table's order.

@@ -1,10 +1,10 @@
 """The explanation paragraph of a diagnosis (what an engineer can act on).
 
 Numbers are the ones written to axis_fitted.toml (rounded there, printed with ``repr``),
-with the axis's units (:func:`.parameters.key_unit`). When the best model still leaves a
-residual far above the noise, or fits poorly, the paragraph says that the model class cannot
-explain the recording, where the unexplained part is and what it points to
-(:mod:`.adequacy`) — never that the differences are noise.
+with the axis's units (:func:`.parameters.key_unit`). When the fitted model still leaves a
+residual far above the noise, the paragraph says that the model class does not explain the
+recording and where — time windows, speed and position ranges, frequency band
+(:mod:`.unexplained`) — never that nothing was left out.
 """
 
 from __future__ import annotations
@@ -15,11 +15,9 @@ from collections.abc import Sequence
 from .adequacy import inadequate
 from .effects import MODELS
 from .mismatch import ResidualTests
+from .outcome import Diagnosis
 from .parameters import MODEL_FORM_KEYS, format_value, rounded
-from .results import Diagnosis
-
-#: Held-out gain (per cent) of a candidate that was not named but is worth a sentence.
-NEAR_MISS_PERCENT = 5.0
+from .unexplained import Where
 
 
 def _correlations(tests: Sequence[ResidualTests]) -> str:
@@ -36,7 +34,6 @@ def _changes(d: Diagnosis) -> str:
     out = []
     for key, (nom, new) in d.fitted_values.items():
         if key in MODEL_FORM_KEYS and not math.isfinite(nom):
-            # the friction law's form: absent in the nominal (set-valued), kept on held-out data
             out.append(f"{key} (absent: set-valued) -> {format_value(key, new, d.fitted)}")
             continue
         if not math.isfinite(nom) or nom == new:
@@ -49,16 +46,30 @@ def _changes(d: Diagnosis) -> str:
     return "; ".join(out)
 
 
-def _suspects(d: Diagnosis) -> str:
-    items = []
-    for s in d.suspects:
-        why = f"on its {s.on_bound} bound" if s.on_bound else ""
-        if s.nominal:
-            unc = 100 * s.uncertainty
-            moved = f"moved {s.change_percent:+.0f} % (data-sheet uncertainty {unc:.0f} %)"
-            why = f"{why}, {moved}" if why else moved
-        items.append(f"{s.key} ({why})")
-    return "; ".join(items)
+def _where(items: Sequence[Where], unit_pos: str) -> list[str]:
+    parts = []
+    for w in items:
+        bits = []
+        if w.windows:
+            spans = ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in w.windows[:4])
+            bits.append(f"in {spans}")
+        if w.speed_ranges:
+            spans = ", ".join(
+                f"{r.low:.3g}..{r.high:.3g} {unit_pos}/s ({r.rms_over_noise:.2g} x noise)"
+                for r in sorted(w.speed_ranges, key=lambda r: -r.rms_over_noise)[:3]
+            )
+            bits.append(f"at speeds {spans}")
+        if w.position_ranges:
+            spans = ", ".join(
+                f"{r.low:.4g}..{r.high:.4g} {unit_pos}"
+                for r in sorted(w.position_ranges, key=lambda r: -r.rms_over_noise)[:3]
+            )
+            bits.append(f"at positions {spans}")
+        if w.band_hz is not None:
+            bits.append(f"in the band {w.band_hz[0]:.3g}-{w.band_hz[1]:.3g} Hz")
+        if bits:
+            parts.append(f"{w.signal} ({w.noise_ratio:.3g} x the noise): " + "; ".join(bits))
+    return parts
 
 
 def _adequacy(d: Diagnosis) -> list[str]:
@@ -69,15 +80,15 @@ def _adequacy(d: Diagnosis) -> list[str]:
         if inadequate(s, a.fit_percent.get(s, 100.0), a.noise_ratio[s])
     ]
     parts = [
-        "The model class does not explain this recording: the best model still leaves "
-        + ", ".join(bad)
-        + "; the difference is not noise."
+        "Unexplained, here: the model class does not explain this recording — the fitted model "
+        "still leaves " + ", ".join(bad) + "; the difference is not noise."
     ]
-    where = [f"{k} ({v:.2g} x its share of time)" for k, v in a.by_condition.items() if v > 1.2]
+    where = _where(d.unexplained, d.nominal.load_unit)
     if where:
-        parts.append("The unexplained part concentrates at: " + ", ".join(where[:3]) + ".")
-    freq = ", ".join(f"{s} {f:.3g} Hz" for s, f in a.frequency_hz.items())
-    parts.append(f"Dominant residual frequency: {freq}.")
+        parts.append("Where: " + "; ".join(where) + ".")
+    conds = [f"{k} ({v:.2g} x its share of time)" for k, v in a.by_condition.items() if v > 1.2]
+    if conds:
+        parts.append("It concentrates at: " + ", ".join(conds[:3]) + ".")
     corr = _correlations(d.tests_final)
     if corr:
         parts.append(f"The residual correlates with: {corr}.")
@@ -88,14 +99,58 @@ def _adequacy(d: Diagnosis) -> list[str]:
     return parts
 
 
+def _evidence(d: Diagnosis) -> list[str]:
+    ev = d.evidence
+    parts = [
+        f"Evidence (false-alarm rate {ev.alpha:g} per recording: each of the effects tested at "
+        f"p < {ev.alpha_each:.2g}):"
+    ]
+    named = []
+    for e in d.left_out:
+        v = next((v for v in ev.verdicts if v.effect is e and v.significant), None)
+        how = f" ({v.relation}, z = {v.z:.3g}, p = {v.p:.2g})" if v is not None else ""
+        named.append(f"{e.value} — {MODELS[e].description}{how}: {MODELS[e].describe(d.fitted)}")
+    parts.append(
+        ("the model leaves out " + "; then ".join(named) + ".")
+        if named
+        else "no effect of the table shows in the measured signals."
+    )
+    below = [
+        f"{v.effect.value} ({v.note})"
+        for v in ev.verdicts
+        if v.note and v.p < ev.alpha_each and v.effect not in d.left_out
+    ]
+    if below:
+        parts.append("Significant but not named: " + "; ".join(dict.fromkeys(below)) + ".")
+    wrong = [x for x in d.datasheet if x.datasheet_wrong]
+    if wrong:
+        parts.append(
+            "The evidence says the data sheet is wrong for "
+            + ", ".join(
+                f"{x.key} (data sheet {x.nominal:.6g}, box {x.box[0]:.4g}..{x.box[1]:.4g} "
+                f"{x.unit}; evidence {x.evidence:.6g} ± {x.standard_error:.2g})"
+                for x in wrong
+                if x.box is not None and x.nominal is not None
+            )
+            + ": it is fitted around the evidence's value."
+        )
+    return parts
+
+
 def explain(d: Diagnosis) -> str:
     """A paragraph an engineer can act on."""
-    parts: list[str] = [f"Re-fit of the nominal parameters: {d.refit_decision}."]
-    if d.suspects:
-        parts.append(
-            "Signs of missing physics (a re-fitted parameter on a bound of its range or moved "
-            "beyond its data-sheet uncertainty): " + _suspects(d) + "."
+    parts = _evidence(d)
+    loop = d.closed_loop
+    parts.append(
+        "Closed loop: held-out cost of the nominal as given "
+        f"{loop.nominal.heldout.cost:.4g}, within its data sheet {loop.base.heldout.cost:.4g}, "
+        f"with the named effects {loop.final.heldout.cost:.4g}"
+        + (
+            f" ({loop.improvement_percent:+.1f} % against the data sheet's, p = {loop.p:.2g})."
+            if d.left_out
+            else "."
         )
+    )
     changes = _changes(d)
     if changes:
         parts.append(f"axis_fitted.toml (nominal -> fitted): {changes}.")
@@ -103,88 +158,30 @@ def explain(d: Diagnosis) -> str:
         f"{s} {d.fit_before[s].fit_percent:.1f} % -> {d.fit_after[s].fit_percent:.1f} %"
         for s in d.fit_after
     )
-    if d.left_out:
-        names = []
-        for e in d.left_out:
-            c = next(c for c in d.candidates if c.effect is e and c.accepted)
-            names.append(
-                f"{e.value} ({MODELS[e].description}; {MODELS[e].describe(d.fitted)}; "
-                f"held-out cost -{c.improvement_percent:.1f} %, p = {c.p_value:.2g})"
-            )
-        parts.append("The model leaves out " + "; then ".join(names) + ".")
-        if d.mismatch_by_condition:
-            where = ", ".join(
-                f"{k} ({v:.2g} s)" for k, v in list(d.mismatch_by_condition.items())[:3]
-            )
-            parts.append(
-                f"The re-fitted nominal simulation departed from the recording beyond noise "
-                f"mostly at: {where} (seconds summed over signals)."
-            )
-        corr = _correlations(d.tests_refit)
-        if corr:
-            parts.append(f"Its residual correlated with: {corr}.")
-        parts.append(f"Simulation fit before -> after: {sig_fit}.")
-    else:
-        parts.append(
-            "No effect of the axis-file table improves the held-out simulation significantly."
-        )
-        parts.append(f"Simulation fit before -> after: {sig_fit}.")
+    parts.append(f"Simulation fit before -> after: {sig_fit}.")
     if not d.adequacy.adequate:
         parts += _adequacy(d)
     elif not d.left_out:
         ratios = ", ".join(f"{s} {r:.3g}" for s, r in d.adequacy.noise_ratio.items())
-        near_misses = [
-            c for c in d.candidates if not c.accepted and c.improvement_percent >= NEAR_MISS_PERCENT
-        ]
-        if d.suspects or near_misses:
-            parts.append(
-                f"The best model's residual over the white-noise level: {ratios} (speed and "
-                "torque below 10, every fit at least 50 %); but the suspect parameters and the "
-                "unnamed candidates in this report say the re-fit may have absorbed an "
-                "effect: this recording does not show that nothing is left out."
-            )
-        else:
-            parts.append(
-                f"The best model's residual over the white-noise level: {ratios} (speed and "
-                "torque below 10, every fit at least 50 %): no effect of the table is needed "
-                "to explain this recording."
-            )
+        parts.append(
+            f"The fitted model's residual over the white-noise level: {ratios} (speed and "
+            "torque below 10, every fit at least 50 %): nothing of the table is needed to "
+            "explain this recording."
+        )
     if d.left_out:
         parts.append(
             "Check the fitted model on a second recording with `python -m plant_sim simulate "
             "--like` (or `diagnose --validate`)."
         )
-    near = [
-        f"{c.effect.value} (round {c.round}: held-out cost -{c.improvement_percent:.1f} %, "
-        f"p = {c.p_value:.2g}, without the best block p = {c.p_without_best_block:.2g})"
-        for c in d.candidates
-        if not c.accepted and c.improvement_percent >= NEAR_MISS_PERCENT
-    ]
-    if near:
-        parts.append(
-            "Not named, but they improved the held-out data without passing the test (a few "
-            "events, or too little excitation; a second recording with more of them, "
-            "`--validate`, decides): " + "; ".join(near) + "."
-        )
-    overfit = [
-        f"{c.effect.value} (round {c.round}: fitting data {c.training_improvement_percent:+.1f} %, "
-        f"held-out {c.improvement_percent:+.1f} %)"
-        for c in d.candidates
-        if c.training_improvement_percent >= 100.0 * d.options.min_improvement
-        and c.improvement_percent < 0.0
-    ]
-    if overfit:
-        parts.append(
-            "Rejected because they fit the fitting data better and the held-out data worse: "
-            + "; ".join(overfit)
-            + "."
-        )
     for a in d.ambiguous:
+        held = (
+            f" (held-out cost ratio {a.cost_ratio:.3f}, p = {a.p_value:.2g})"
+            if math.isfinite(a.cost_ratio)
+            else ""
+        )
         parts.append(
-            f"{a.alternative.value} explains the data about as well as {a.named.value} "
-            f"(held-out cost ratio {a.cost_ratio:.3f}, p = {a.p_value:.2g}); "
-            f"{a.named.value} was named: it needs fewer parameters and the held-out test "
-            f"does not show the other better. To tell them apart: {a.experiment}."
+            f"{a.alternative.value} explains the same signature as {a.named.value}{held}; "
+            f"{a.named.value} is named. To tell them apart: {a.experiment}."
         )
     parts += d.notes
     return " ".join(parts)

@@ -1,15 +1,17 @@
 """Confusion matrix and fit improvements of the diagnosis on the concealed test set.
 
-``python -m plant_sim matrix [--plant kernel|independent] [--seed 2] [--duration 25]
-[--cases NAME ...] [--out DIR]`` runs :func:`run_matrix` on
-:func:`plant_sim.diagnosis.synthetic.test_set` and prints the markdown tables (confusion
-matrix, per-case results with concealment and fit before/after, timings); ``--out`` also
-writes them to ``DIR/matrix_<plant>_seed<S>.md`` (and the results as JSON lines).
+``python -m plant_sim matrix [--plant kernel|independent|third] [--seed 2] [--duration 25]
+[--cases NAME ...] [--out DIR]`` runs :func:`run_matrix` on the plant's test set and prints
+the markdown tables (confusion matrix, per-case results with concealment and fit
+before/after, timings); ``--out`` also writes them to ``DIR/matrix_<plant>_seed<S>.md`` (and
+the results as JSON lines).
 
 The plant that makes the recordings is a :class:`MatrixPlant`: ``kernel`` is this package's
 compiled kernel (:func:`synthetic.generate`), ``independent`` the test suite's independent
 plant (``tests/independent_plant``: other integrator, friction and contact laws, sensors,
-current loop and noise), found relative to this checkout.
+current loop and noise) on the same test set, ``third`` the third plant with its own
+families and test set (``tests/third_plant``: three masses, LuGre friction, ...), both found
+relative to this checkout.
 The full set takes several minutes (one diagnosis per case); the test suite runs a few cases.
 """
 
@@ -24,38 +26,73 @@ from pathlib import Path
 
 from .effects import Effect, effects_in
 from .engine import DiagnosisOptions, diagnose
-from .synthetic import Case, GeneratedCase, Simulator, concealment, generate, truth_simulator
+from .synthetic import (
+    Case,
+    GeneratedCase,
+    concealment,
+    generate,
+    test_set,
+    truth_simulator,
+)
 
 DEFAULT_OPTIONS = DiagnosisOptions()
 
 
 @dataclass(frozen=True)
 class MatrixPlant:
-    """What makes the recordings: ``generate`` turns a case into a recording, nominal file and
-    hidden truth; ``simulator`` is the same plant noise-free (for the concealment measure)."""
+    """What makes the recordings: ``cases`` the test set of a seed and duration,
+    ``generate`` turns a case into a recording, nominal file and hidden truth,
+    ``concealment`` says how hidden its effect is (the same plant noise-free)."""
 
     name: str
+    cases: Callable[[int, float], list[Case]]
     generate: Callable[[Case], GeneratedCase]
-    simulator: Simulator
+    concealment: Callable[[GeneratedCase], dict[str, float]]
 
 
-KERNEL_PLANT = MatrixPlant("kernel", generate, truth_simulator)
-PLANTS = ("kernel", "independent")
+def _kernel_cases(seed: int, duration_s: float) -> list[Case]:
+    return test_set(seed=seed, duration_s=duration_s)
+
+
+def _kernel_concealment(gen: GeneratedCase) -> dict[str, float]:
+    return concealment(gen, truth_simulator)
+
+
+KERNEL_PLANT = MatrixPlant("kernel", _kernel_cases, generate, _kernel_concealment)
+PLANTS = ("kernel", "independent", "third")
+
+
+def _tests_package(name: str) -> object:
+    tests_dir = Path(__file__).resolve().parents[2] / "tests"
+    if not (tests_dir / name).is_dir():
+        raise ValueError(f"{tests_dir / name} not found (the plant lives in this checkout's tests)")
+    if str(tests_dir) not in sys.path:
+        sys.path.insert(0, str(tests_dir))
+    return importlib.import_module(name)
 
 
 def load_plant(name: str) -> MatrixPlant:
-    """``kernel`` or ``independent`` (imported from this checkout's tests/ directory)."""
+    """``kernel``, ``independent`` or ``third`` (the last two imported from this checkout's
+    tests/ directory: ``independent_plant``, ``third_plant``)."""
     if name == "kernel":
         return KERNEL_PLANT
-    if name != "independent":
-        raise ValueError(f"plant {name!r}: allowed {PLANTS}")
-    tests_dir = Path(__file__).resolve().parents[2] / "tests"
-    if not (tests_dir / "independent_plant").is_dir():
-        raise ValueError(f"plant 'independent': {tests_dir / 'independent_plant'} not found")
-    if str(tests_dir) not in sys.path:
-        sys.path.insert(0, str(tests_dir))
-    recording = importlib.import_module("independent_plant.recording")
-    return MatrixPlant("independent", recording.generate, recording.simulator)
+    if name == "independent":
+        _tests_package("independent_plant")
+        recording = importlib.import_module("independent_plant.recording")
+
+        def conceal(gen: GeneratedCase) -> dict[str, float]:
+            return concealment(gen, recording.simulator)
+
+        return MatrixPlant("independent", _kernel_cases, recording.generate, conceal)
+    if name == "third":
+        third = _tests_package("third_plant")
+        cases = importlib.import_module("third_plant.cases")
+
+        def third_cases(seed: int, duration_s: float) -> list[Case]:
+            return cases.test_set(seed, duration_s)
+
+        return MatrixPlant("third", third_cases, third.generate, third.concealment)  # type: ignore[attr-defined]
+    raise ValueError(f"plant {name!r}: allowed {PLANTS}")
 
 
 @dataclass(frozen=True)
@@ -103,7 +140,7 @@ def run_case(
         exact=sorted(named) == expected,
         expected=expected,
         ambiguous_with=[a.alternative.value for a in d.ambiguous],
-        concealment=concealment(gen, plant.simulator),
+        concealment=plant.concealment(gen),
         fit_before={k: v.fit_percent for k, v in d.fit_before.items()},
         fit_refit={k: v.fit_percent for k, v in d.fit_refit.items()},
         fit_after={k: v.fit_percent for k, v in d.fit_after.items()},

@@ -5,12 +5,12 @@
   system-identification toolboxes; 100 % is perfect, 0 % is no better than the mean, it can
   be negative).
 * :func:`autocorrelation_time`: integrated autocorrelation time τ of a residual; a coloured
-  residual of n samples carries n/τ independent samples (``n_eff``). The F statistic and the
-  information criterion are computed with n_eff, not n, so that slowly varying residuals
-  (unmodelled disturbances, closed-loop colouring) do not make every parameter "significant".
-* :func:`f_test`: nested-model F test of a residual-sum-of-squares reduction.
-* :func:`information_criterion`: BIC with n_eff.
+  residual of n samples carries n/τ independent samples (``n_eff``); the information
+  criterion is computed with n_eff, not n.
+* :func:`information_criterion`: BIC with n_eff (reported per held-out score).
 * :func:`ljung_box`: portmanteau whiteness test.
+* :func:`improvement_test`: the held-out comparison of two closed-loop models
+  (:mod:`.closed_loop`).
 """
 
 from __future__ import annotations
@@ -69,22 +69,6 @@ def autocorrelation_time(x: np.ndarray, max_lag: int = MAX_TAU_LAG) -> float:
 def effective_samples(n: int, tau: float) -> float:
     """n / τ, at least 2."""
     return max(2.0, n / max(tau, 1.0))
-
-
-def f_test(
-    rss_small: float, rss_big: float, k_small: int, k_big: int, n_eff: float
-) -> tuple[float, float]:
-    """F statistic and p-value of the RSS reduction from a model with k_small free parameters
-    to a nested one with k_big: F = ((RSS0 − RSS1)/Δk) / (RSS1/(n_eff − k_big)).
-    A reduction ≤ 0 gives F = 0, p = 1."""
-    dk = max(1, k_big - k_small)
-    dof = max(1.0, n_eff - k_big)
-    if rss_big <= 0.0:
-        return (math.inf, 0.0) if rss_small > 0.0 else (0.0, 1.0)
-    f = ((rss_small - rss_big) / dk) / (rss_big / dof)
-    if f <= 0.0:
-        return 0.0, 1.0
-    return float(f), float(stats.f.sf(f, dk, dof))
 
 
 def information_criterion(mse: float, n_eff: float, k: int) -> float:

@@ -1,31 +1,26 @@
 """The fitted parameters of an axis file: bounds, normalisation, data-sheet uncertainty and
-units of every key the diagnosis may fit, the keys re-fitted for a model, and the kernel
-substeps a fit needs.
+units of every key the diagnosis may fit, and the kernel substeps a fit needs.
 
-Every bound rule is here (:mod:`.effects` only chooses starts, :mod:`.fit` only searches).
-Bounds scale with the recording (peak torque, top speed, following error) so that one rule
-serves a 6.5 t milling axis and a 25 kg slide; the nominal axis anchors relative bounds.
+Every bound rule is here (:mod:`.closed_loop` chooses which keys are free, :mod:`.fit` only
+searches). Bounds scale with the recording (peak torque, top speed, following error) so that
+one rule serves a 6.5 t milling axis and a 25 kg slide; the nominal axis anchors relative
+bounds.
 
-Data-sheet uncertainty (:data:`UNCERTAINTY`): how far a re-fit may move a parameter from the
-nominal value before the move itself is a finding. A parameter that ends on a bound of its
-search box, or moves further than its uncertainty, is reported as a sign of missing physics
-(:func:`suspects`): small differences of model form (a dead time, a cogging torque) are
-otherwise soaked up by the elastic parameters, and the diagnosis then compares every effect,
-fitted with those parameters held within their uncertainty (:func:`within_uncertainty`),
-against the re-fit that moved them further.
+Data-sheet uncertainty (:data:`UNCERTAINTY`, :func:`uncertainty_box`): how far the closed-loop
+fit may move a nominal parameter — unless the evidence stage's estimate lies beyond it by more
+than its standard errors, which says the data sheet is wrong (:mod:`.screen`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import replace
 
 from virtual_bus.formats.axis import AxisConfig, AxisKind
 
 from ..physics.model import MAX_OMEGA_DT, KernelOptions
 from .evidence import DataScales
-from .fit import PERIODIC_COS, PERIODIC_SIN, FitResult, FitSpec, Parameter
+from .fit import PERIODIC_COS, PERIODIC_SIN, Parameter
 
 #: Relative uncertainty of a data-sheet value (1 sigma-ish; a move beyond it is a finding).
 #: Mass from the drawing/weighing: 15 %; stiffness (antiresonance) from a frequency response
@@ -110,14 +105,19 @@ def speed_loop_bandwidth(axis: AxisConfig) -> float:
 
 def max_antiresonance(axis: AxisConfig, max_substeps: int = 5) -> float:
     """Largest ω_a fitted: the resonance ω_r = ω_a·√(1+R) must keep ω_r·dt <= MAX_OMEGA_DT
-    with at most ``max_substeps`` mechanics substeps per speed cycle (cost of a simulation)."""
-    r = axis.load_inertia_reflected / axis.motor_side_inertia
+    with at most ``max_substeps`` mechanics substeps per speed cycle (cost of a simulation).
+    0 for a lumped rigid model (no motor-side inertia: no elastic element can be added; the
+    axis-file rules need motor_inertia + screw_inertia > 0 with an antiresonance)."""
+    if not axis.motor_side_inertia > 0.0:
+        return 0.0
+    r = axis.inertia_ratio
     return max_substeps * MAX_OMEGA_DT / axis.control.speed_cycle / math.sqrt(1.0 + r)
 
 
 def contact_antiresonance(axis: AxisConfig) -> float:
     """ω_a of the stiff contact added with backlash to a rigid model: ten times the speed
-    loop's bandwidth, at most what 3 substeps per speed cycle integrate."""
+    loop's bandwidth, at most what 3 substeps per speed cycle integrate (0: none possible,
+    a lumped rigid model)."""
     return min(10.0 * speed_loop_bandwidth(axis), 0.99 * max_antiresonance(axis, 3))
 
 
@@ -127,11 +127,55 @@ CONTACT_DAMPING = 0.1
 
 def options_for(axis_max_wa: float | None, axis: AxisConfig) -> KernelOptions:
     """Kernel substeps fixed for a whole fit, from the largest ω_a it may visit."""
-    if axis_max_wa is None:
+    if axis_max_wa is None or not axis.motor_side_inertia > 0.0:
         return KernelOptions(substeps=1)
-    r = axis.load_inertia_reflected / axis.motor_side_inertia
-    wr = axis_max_wa * math.sqrt(1.0 + r)
+    wr = axis_max_wa * math.sqrt(1.0 + axis.inertia_ratio)
     return KernelOptions(substeps=max(1, math.ceil(wr * axis.control.speed_cycle / MAX_OMEGA_DT)))
+
+
+#: Keys whose value must be positive, and those that may be zero but not negative: an
+#: estimate outside is not physical (it says nothing about the data sheet).
+POSITIVE_KEYS = frozenset(
+    {
+        "mechanics.load_mass",
+        "mechanics.antiresonance",
+        "control.torque_limit",
+        "friction.stribeck_speed",
+        "disturbance.periodic_period",
+    }
+)
+
+
+def physical(key: str, value: float) -> bool:
+    """Whether ``value`` is a possible value of ``key`` (signed keys: any finite value)."""
+    if not math.isfinite(value):
+        return False
+    if key in POSITIVE_KEYS:
+        return value > 0.0
+    if key.startswith(("mechanics.", "friction.")) or key in (
+        "disturbance.periodic_amplitude",
+        "control.delay",
+    ):
+        return value >= 0.0
+    return True
+
+
+#: The axis-file format's own ranges (docs/axis-file.md) of the keys whose fitting bounds
+#: come from the recording's scales: a bound beyond them would let the fit try a value no
+#: axis file may hold (a viscous friction of 3e6 on an axis of huge torques).
+FORMAT_RANGE: dict[str, tuple[float, float]] = {
+    "mechanics.antiresonance": (0.0, 1e6),
+    "mechanics.damping_ratio": (0.0, 1.0),
+    "mechanics.backlash": (0.0, 0.1),
+    **{
+        f"friction.{name}": (0.0, 1e6)
+        for name in ("coulomb", "coulomb_negative", "stribeck", "viscous", "viscous_negative")
+    },
+    "disturbance.constant_torque": (-1e6, 1e6),
+    PERIODIC_COS: (-1e6 / math.sqrt(2.0), 1e6 / math.sqrt(2.0)),
+    PERIODIC_SIN: (-1e6 / math.sqrt(2.0), 1e6 / math.sqrt(2.0)),
+    "control.sensor_time_offset": (-0.05, 0.05),
+}
 
 
 def parameter_for(
@@ -143,7 +187,32 @@ def parameter_for(
 ) -> Parameter:
     """Bounds and scale of one fitted key around its current ``value``; the nominal axis
     anchors the relative bounds of mass, antiresonance and damping (a data sheet is within a
-    factor 2), the recording the absolute ones of torques and speeds."""
+    factor 2), the recording the absolute ones of torques and speeds; never beyond the
+    format's range of the key (:data:`FORMAT_RANGE`)."""
+    return within_format(_parameter_for(key, value, scales, nominal, axis))
+
+
+def within_format(p: Parameter) -> Parameter:
+    """``p`` with its bounds cut to the format's range of its key (:data:`FORMAT_RANGE`)."""
+    if p.key not in FORMAT_RANGE:
+        return p
+    lo, hi = FORMAT_RANGE[p.key]
+    low, high = max(p.low, lo), min(p.high, hi)
+    if (low, high) == (p.low, p.high):
+        return p
+    if not low < high:  # the whole box beyond the range (an evidence box): its edge
+        width = min(p.high - p.low, 0.5 * (hi - lo))
+        low, high = (hi - width, hi) if p.low >= hi else (lo, lo + width)
+    return replace(p, low=low, high=high, scale=p.scale if p.log else min(p.scale, high - low))
+
+
+def _parameter_for(
+    key: str,
+    value: float,
+    scales: DataScales,
+    nominal: AxisConfig,
+    axis: AxisConfig,
+) -> Parameter:
     tp, vmax = scales.torque_peak, scales.speed_max
     ref = nominal.value(key) if key.startswith("mechanics.") else None
     if key == "mechanics.load_mass":
@@ -157,7 +226,10 @@ def parameter_for(
     if key == "mechanics.damping_ratio":
         n = ref or value
         if n > 0.0:
-            return Parameter(key, max(0.002, n / 5.0), min(1.0, 5.0 * n), value, n, log=True)
+            lo, hi = max(0.002, n / 5.0), min(1.0, 5.0 * n)
+            if not lo < hi:  # below the usual floor (an evidence estimate): its own factor 5
+                lo, hi = n / 5.0, 5.0 * n
+            return Parameter(key, lo, hi, value, n, log=True)
         return Parameter(key, 0.0, 0.5, value, 0.05)
     if key == "mechanics.backlash":
         b = max(0.01 * scales.following_error, 1e-9)
@@ -222,27 +294,6 @@ CREEP_RANGE = (1e-5, 0.05)
 MODEL_FORM_KEYS = ("friction.creep_speed",)
 
 
-def free_keys(
-    axis: AxisConfig, added_keys: Sequence[str] = (), fixed: Sequence[str] = ()
-) -> list[str]:
-    """Keys refitted for a model: the uncertain keys present, plus ``added_keys`` (continuous
-    keys of effects the diagnosis added, a torque limit), minus ``fixed`` (a backlash
-    contact, parameters held at nominal). A key whose every change would make the axis
-    invalid is not free: a backlash present with 0 on a rigid axis (it needs an
-    antiresonance) stays 0."""
-    keys = [k for k in UNCERTAIN_KEYS if axis.value(k) is not None and k not in fixed]
-    keys += [k for k in added_keys if k not in fixed and k not in keys]
-    if axis.is_rigid and "mechanics.backlash" in keys:
-        keys.remove("mechanics.backlash")
-    out: list[str] = []
-    for k in keys:
-        if k == "disturbance.periodic_amplitude":
-            out += [PERIODIC_COS, PERIODIC_SIN]
-        elif k != "disturbance.periodic_phase":
-            out.append(k)
-    return out
-
-
 def current_value(axis: AxisConfig, key: str) -> float:
     if key in (PERIODIC_COS, PERIODIC_SIN):
         amp = axis.disturbance.periodic_amplitude or 0.0
@@ -252,124 +303,19 @@ def current_value(axis: AxisConfig, key: str) -> float:
     return 0.0 if value is None else float(value)
 
 
-def base_parameters(
-    axis: AxisConfig,
-    keys: Sequence[str],
-    scales: DataScales,
-    nominal: AxisConfig,
-    hold: Sequence[str] = (),
-) -> tuple[Parameter, ...]:
-    """The fitted parameters of ``keys`` around their values in ``axis``; the ``hold`` ones
-    (suspects of a re-fit, while effects are compared) only within their data-sheet
-    uncertainty (:func:`within_uncertainty`)."""
-    params = (parameter_for(k, current_value(axis, k), scales, nominal, axis) for k in keys)
-    return tuple(within_uncertainty(p, nominal) if p.key in hold else p for p in params)
-
-
-def _max_wa(parameters: Sequence[Parameter], axis: AxisConfig) -> float | None:
-    for p in parameters:
-        if p.key == "mechanics.antiresonance":
-            return p.high
-    return axis.mechanics.antiresonance
-
-
-def nominal_spec(
-    axis: AxisConfig, scales: DataScales, idim: Mapping[str, float], n_global: int = 12
-) -> FitSpec:
-    """Re-fit of the nominal model's uncertain parameters: starts at the nominal values, at
-    the inverse-dynamics estimates, and at the best points of a Sobol sample of the box."""
-    params = base_parameters(axis, free_keys(axis), scales, axis)
-    idim_start = {k: v for k, v in idim.items() if any(p.key == k for p in params)}
-    return FitSpec(
-        base=axis,
-        parameters=params,
-        extra_starts=(idim_start,) if idim_start else (),
-        options=options_for(_max_wa(params, axis), axis),
-        n_global=n_global,
-    )
-
-
-@dataclass(frozen=True)
-class Suspect:
-    """A re-fitted parameter that ended on a bound of its search box or moved further from
-    the nominal value than its data-sheet uncertainty: a sign of missing physics."""
-
-    key: str
-    nominal: float
-    fitted: float
-    uncertainty: float  # relative
-    on_bound: str  # "", "lower" or "upper"
-
-    @property
-    def change_percent(self) -> float:
-        return 100.0 * (self.fitted / self.nominal - 1.0) if self.nominal else math.inf
-
-
-def suspects(
-    result: FitResult, parameters: Sequence[Parameter], nominal: AxisConfig
-) -> list[Suspect]:
-    """Parameters of a re-fit that ended on a bound (within 1 % of the box in normalised
-    units; a friction or torque ending at zero counts) or moved beyond :data:`UNCERTAINTY`
-    from their nominal value (only keys the nominal has with a non-zero value)."""
-    out = []
-    for p in parameters:
-        if p.key not in result.values or p.key in MODEL_FORM_KEYS:
-            continue
-        value = result.values[p.key]
-        lo, hi = p.u_bounds
-        u = p.to_u(value)
-        tol = 0.01 * (hi - lo)
-        bound = "lower" if u <= lo + tol else "upper" if u >= hi - tol else ""
-        nom = nominal.value(p.key) if p.key not in (PERIODIC_COS, PERIODIC_SIN) else None
-        rel = UNCERTAINTY.get(p.key, 1.0)
-        moved = nom is not None and beyond_uncertainty(p.key, value, nominal)
-        if bound and p.low == 0.0 and (nom is None or nom == 0.0):
-            bound = ""  # an absent/zero value staying at zero is no finding
-        if bound or moved:
-            out.append(Suspect(p.key, float(nom or 0.0), float(value), rel, bound))
-    return out
-
-
 def uncertainty_box(key: str, nominal: AxisConfig) -> tuple[float, float] | None:
     """The values a data sheet allows for ``key``: the nominal value within its relative
     :data:`UNCERTAINTY` (None: the nominal has no value for it)."""
+    if key in (PERIODIC_COS, PERIODIC_SIN):
+        amp = nominal.disturbance.periodic_amplitude
+        if not amp:
+            return None
+        n = current_value(nominal, key)
+        u = UNCERTAINTY[key] * amp
+        return n - u, n + u
     n = nominal.value(key)
     if n is None or n == 0.0:
         return None
     u = UNCERTAINTY.get(key, 1.0)
     lo, hi = sorted((n * (1.0 - u), n * (1.0 + u)))
     return lo, hi
-
-
-def beyond_uncertainty(key: str, value: float, nominal: AxisConfig) -> bool:
-    """Whether ``value`` lies outside the data sheet's :func:`uncertainty_box` (False when
-    the nominal has no value for ``key``)."""
-    box = uncertainty_box(key, nominal)
-    return box is not None and not box[0] <= value <= box[1]
-
-
-def within_uncertainty(p: Parameter, nominal: AxisConfig) -> Parameter:
-    """``p`` with its bounds cut to the data sheet's :func:`uncertainty_box`."""
-    box = uncertainty_box(p.key, nominal)
-    if box is None:
-        return p
-    lo, hi = max(p.low, box[0]), min(p.high, box[1])
-    if not lo < hi:
-        return p
-    return Parameter(p.key, lo, hi, p.start, p.scale, p.log)
-
-
-def held_within(axis: AxisConfig, nominal: AxisConfig, keys: Sequence[str]) -> AxisConfig:
-    """``axis`` with ``keys`` moved to the nearest value its data sheet allows."""
-    values = {}
-    for k in keys:
-        box, v = uncertainty_box(k, nominal), axis.value(k)
-        if box is not None and v is not None:
-            values[k] = min(box[1], max(box[0], float(v)))
-    return axis.with_values(values) if values else axis
-
-
-def held_at_nominal(axis: AxisConfig, nominal: AxisConfig, keys: Sequence[str]) -> AxisConfig:
-    """``axis`` with ``keys`` set back to their nominal values (keys the nominal has)."""
-    values = {k: nominal.value(k) for k in keys if nominal.value(k) is not None}
-    return axis.with_values(values) if values else axis

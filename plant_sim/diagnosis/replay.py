@@ -119,7 +119,9 @@ def _fail_ratio(
         f"recording column {name!r} travels {ratio:.6g} {what} per load unit of "
         f"position_reference, the axis file says {expected:.6g}{model} "
         f"(allowed within {RATIO_TOLERANCE:.0%}{soft}); the axis file and the recording do not fit "
-        "together (transmission_ratio or units)",
+        "together (transmission_ratio or units; or the axis sticks or lags far more than its "
+        "loop in the axis file does: a friction or load it lacks that the loop cannot "
+        "overcome — diagnose a recording in which the axis follows its reference)",
         column=name,
         key="axis.transmission_ratio" if name == "motor_position" else None,
     )

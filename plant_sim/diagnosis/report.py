@@ -16,9 +16,11 @@ import numpy as np
 from virtual_bus.formats.axis import dump_axis
 from virtual_bus.formats.trace import Trace
 
-from .engine import DECISION_RULE, Diagnosis
+from .closed_loop import ModelFit
 from .fit import plain_floats
+from .outcome import Diagnosis
 from .parameters import key_unit, units
+from .results import DECISION_RULE
 
 REPORT_FILES = ("report.json", "axis_fitted.toml", "fit_before.csv", "fit_after.csv", "report.png")
 
@@ -40,44 +42,79 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
+def _model_fit(m: ModelFit) -> dict[str, Any]:
+    return {
+        "name": m.name,
+        "effects": [e.value for e in m.effects],
+        "heldout_cost": m.heldout.cost,
+        "heldout_fit_percent": {s: f.fit_percent for s, f in m.heldout.fits.items()},
+        "training_cost": m.result.cost,
+        "n_free": m.heldout.n_free,
+        "bounds": [
+            {"key": b.key, "low": b.low, "high": b.high, "start": b.start, "source": b.source}
+            for b in m.bounds
+        ],
+    }
+
+
 def report_dict(d: Diagnosis) -> dict[str, Any]:
     """The content of report.json."""
     rec = d.recording
+    ev, loop = d.evidence, d.closed_loop
     return _jsonable(
         {
             "left_out": [e.value for e in d.left_out],
-            "candidates": [
+            "evidence": {
+                "alpha": ev.alpha,
+                "alpha_per_test": ev.alpha_each,
+                "named": [e.value for e in ev.named],
+                "tests": [
+                    {
+                        "effect": v.effect.value,
+                        "round": v.round,
+                        "relation": v.relation,
+                        "statistic": v.statistic,
+                        "z": v.z,
+                        "p_value": v.p,
+                        "significant": v.significant,
+                        "named": v.named,
+                        "estimate": v.estimate,
+                        "replay_estimate": v.replay_estimate,
+                        "blocks": v.n_blocks,
+                        "note": v.note,
+                    }
+                    for v in ev.verdicts
+                ],
+                "not_tested": {e.value: why for e, why in ev.not_tested.items()},
+                "relations": ev.relations,
+                "replays": ev.n_replays,
+                "seconds": ev.seconds,
+            },
+            "datasheet": [
                 {
-                    "effect": c.effect.value,
-                    "round": c.round,
-                    "accepted": c.accepted,
-                    "significant": c.significant,
-                    "parameters": c.parameters,
-                    "heldout": {
-                        "cost": c.heldout.cost,
-                        "n_samples": c.heldout.n_samples,
-                        "n_eff": c.heldout.n_eff,
-                        "n_free": c.heldout.n_free,
-                        "bic": c.heldout.bic,
-                        "fit": {
-                            s: {"nrmse": f.nrmse, "fit_percent": f.fit_percent}
-                            for s, f in c.heldout.fits.items()
-                        },
-                    },
-                    "information_criterion": c.heldout.bic,
-                    "improvement_percent": c.improvement_percent,
-                    "training_improvement_percent": c.training_improvement_percent,
-                    "f_statistic": c.f_statistic,
-                    "z_statistic": c.z_statistic,
-                    "p_value": c.p_value,
-                    "p_without_best_block": c.p_without_best_block,
-                    "f_p_value": c.f_p_value,
-                    "notes": c.notes,
-                    "n_simulations": c.n_simulations,
-                    "seconds": c.seconds,
+                    "key": x.key,
+                    "nominal": x.nominal,
+                    "uncertainty_box": x.box,
+                    "evidence": x.evidence,
+                    "standard_error": x.standard_error,
+                    "datasheet_wrong": x.datasheet_wrong,
+                    "fitted": x.fitted,
+                    "unit": x.unit,
                 }
-                for c in d.candidates
+                for x in d.datasheet
             ],
+            "closed_loop": {
+                "nominal": _model_fit(loop.nominal),
+                "within_datasheet": _model_fit(loop.base),
+                "final": _model_fit(loop.final),
+                "alternatives": [_model_fit(m) for m in loop.alternatives],
+                "improvement_percent": loop.improvement_percent,
+                "z": loop.z,
+                "p_value": loop.p,
+                "swaps": loop.swaps,
+                "simulations": loop.n_simulations,
+                "seconds": loop.seconds,
+            },
             "ambiguous": [
                 {
                     "named": a.named.value,
@@ -90,35 +127,21 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
             ],
             "mismatch": d.mismatch,
             "mismatch_by_condition_s": d.mismatch_by_condition,
-            "tests": {"refit": d.tests_refit, "final": d.tests_final},
+            "tests": d.tests_final,
             "fit_before": d.fit_before,
             "fit_refit": d.fit_refit,
             "fit_after": d.fit_after,
-            "heldout": {"refit": d.heldout_refit, "final": d.heldout_final},
-            "refit": {k: {"nominal": n, "fitted": f} for k, (n, f) in d.refit_values.items()},
-            "refit_decision": d.refit_decision,
-            "suspects": [
-                {
-                    "key": x.key,
-                    "nominal": x.nominal,
-                    "fitted": x.fitted,
-                    "change_percent": x.change_percent,
-                    "uncertainty_percent": 100.0 * x.uncertainty,
-                    "on_bound": x.on_bound,
-                    "unit": key_unit(x.key, d.nominal),
-                }
-                for x in d.suspects
-            ],
+            "heldout": {
+                "nominal": d.heldout_nominal,
+                "refit": d.heldout_refit,
+                "final": d.heldout_final,
+            },
             "fitted": {
                 k: {"nominal": n, "fitted": f, "unit": key_unit(k, d.nominal)}
                 for k, (n, f) in d.fitted_values.items()
             },
-            "heldout_cost": {
-                "nominal": d.heldout_nominal.cost,
-                "refit": d.heldout_refit.cost,
-                "final": d.heldout_final.cost,
-            },
             "adequacy": d.adequacy,
+            "unexplained": d.unexplained,
             "explanation": d.explanation,
             "decision_rule": DECISION_RULE.format(
                 alpha=d.options.alpha,
@@ -148,7 +171,8 @@ def axis_text(d: Diagnosis, source: str = "") -> str:
     header = [
         "Fitted by python -m plant_sim diagnose" + (f" from {source}" if source else "") + ".",
         f"Effects added: {added}.",
-        "Uncertain parameters re-fitted by closed-loop simulation error.",
+        "Uncertain parameters re-fitted by closed-loop simulation error, within their "
+        "data-sheet uncertainty unless the evidence put them beyond it.",
         *d.notes,
     ]
     return dump_axis(plain_floats(d.fitted), header="\n".join(header))
@@ -215,7 +239,13 @@ def plot_report(d: Diagnosis, path: str | Path) -> None:
         )
         ax.set_ylabel(f"{name}\n({unit})", fontsize=9)
         axr.plot(t, rec - before, lw=0.4, color="tab:red", alpha=0.5, label="recording − nominal")
-        axr.plot(t, rec - refit, lw=0.5, color="tab:orange", label="recording − re-fitted nominal")
+        axr.plot(
+            t,
+            rec - refit,
+            lw=0.5,
+            color="tab:orange",
+            label="recording − nominal within data sheet",
+        )
         axr.plot(t, rec - after, lw=0.5, color="tab:blue", label="recording − fitted")
         axr.axhline(0.0, color="k", lw=0.5)
         axr.set_ylabel(f"residual\n({unit})", fontsize=9)

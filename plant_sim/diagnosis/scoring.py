@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
 
 import numpy as np
 
@@ -114,12 +113,6 @@ def heldout_blocks(
         out.append(b)
         offset = int(b.max()) + 1
     return np.concatenate(out)
-
-
-def rescaled(result: FitResult, old: Objective, new: Objective) -> FitResult:
-    """``result`` with its residuals and cost in ``new``'s signal scales (no simulation)."""
-    res = {s: result.residuals[s] * old.scales[s] / new.scales[s] for s in new.signals}
-    return replace(result, residuals=res, cost=new.cost(res))
 
 
 def block_index(time_s: np.ndarray, block_s: float) -> np.ndarray:

@@ -335,7 +335,9 @@ def process_disturbance(
 # ----------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Case:
-    """One recording of the test set: ``effect`` None means nothing is left out."""
+    """One recording of a test set: ``effect`` None means nothing is left out. ``family``
+    names one of the plant's families (:data:`FAMILIES` here; a plant with its own families
+    checks them when it generates the case)."""
 
     name: str
     family: str
@@ -344,10 +346,8 @@ class Case:
     duration_s: float = 25.0
 
     def __post_init__(self) -> None:
-        if self.family not in FAMILIES:
-            raise DiagnosisOptionError(
-                f"case {self.name}: family {self.family!r}, allowed {sorted(FAMILIES)}"
-            )
+        if not self.family:
+            raise DiagnosisOptionError(f"case {self.name}: no family")
         if not 2.0 <= self.duration_s <= 3600.0:
             raise DiagnosisOptionError(
                 f"case {self.name}: duration_s = {self.duration_s!r}, allowed [2, 3600] s"
@@ -407,7 +407,7 @@ def truth_simulator(axis: AxisConfig, refs: References) -> Trace:
 def hidden_axes(case: Case, refs: References, plant: Simulator) -> tuple[AxisConfig, AxisConfig]:
     """The hidden truth of ``case`` and the truth without its concealed effect (a torque
     limit is set relative to ``plant``'s peak demand on ``refs``)."""
-    fam = FAMILIES[case.family]
+    fam = family_of(case)
     base = fam.truth
     truth = base
     if case.effect is not None:
@@ -435,9 +435,18 @@ def recorded_columns(sim: Trace) -> dict[str, np.ndarray]:
     return {name: sim[name][keep] for name in names}
 
 
+def family_of(case: Case) -> Family:
+    """The family of ``case`` (refused with the allowed names when unknown)."""
+    if case.family not in FAMILIES:
+        raise DiagnosisOptionError(
+            f"case {case.name}: family {case.family!r}, allowed {sorted(FAMILIES)}"
+        )
+    return FAMILIES[case.family]
+
+
 def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
     """Simulate the recording of ``case`` with ``plant`` (deterministic in its seed)."""
-    fam = FAMILIES[case.family]
+    fam = family_of(case)
     rng = np.random.default_rng(case.seed)
     cycle = fam.truth.control.position_cycle
     position = reference_profile(fam.excitation, case.duration_s, cycle, rng)
@@ -469,7 +478,7 @@ def concealment(gen: GeneratedCase, simulator: Simulator | None = None) -> dict[
     the plant that made the recording (default :func:`truth_simulator`)."""
     if gen.case.effect is None:
         return {}
-    fam = FAMILIES[gen.case.family]
+    fam = family_of(gen.case)
     sim = simulator or truth_simulator
     with_e = sim(gen.truth, gen.references)
     without = sim(gen.truth_without, gen.references)

@@ -1,12 +1,13 @@
 """Benchmark of the diagnosis (wired into ``python -m plant_sim bench --all``).
 
-:func:`bench_diagnose` times the whole diagnosis of 25 s, 12,500-sample recordings of the
-concealed test set (target: <= 10 s each on the project's 2-core machine) and says whether
-it named the hidden effect; its ``table`` is what ``bench --all`` prints. It also times one
-kernel simulation of the same recording and reports the diagnosis in simulations, so that a
-run on a busy machine can be compared with a quiet one (relative cost).
+:func:`bench_diagnose` times the evidence stage and the whole diagnosis of 25 s,
+12,500-sample recordings of the concealed test set (targets: evidence <= 1 s, whole <= 3 s
+each on the project's 2-core machine) and says whether it named the hidden effect; its
+``table`` is what ``bench --all`` prints. It also times one kernel simulation of the same
+recording and reports the diagnosis in simulations and in wall time per simulation, so
+that a run on a busy machine can be compared with a quiet one (relative cost).
 :func:`bench_matrix` runs the full confusion matrix (several minutes; also
-``python -m plant_sim.diagnosis.matrix``).
+``python -m plant_sim matrix``).
 """
 
 from __future__ import annotations
@@ -21,8 +22,10 @@ from .parameters import options_for
 from .replay import prepare_replay, replay
 from .synthetic import Case, generate, test_set
 
-#: Wall-clock budget of one 25 s / 12,500-sample diagnosis (the issue's requirement).
-BUDGET_S = 10.0
+#: Wall-clock budget of one 25 s / 12,500-sample diagnosis, and of its evidence stage (the
+#: issue's requirement).
+BUDGET_S = 3.0
+EVIDENCE_BUDGET_S = 1.0
 
 CASES = (
     Case("mill-backlash", "mill", Effect.BACKLASH, 1000),
@@ -31,13 +34,18 @@ CASES = (
 
 
 def bench_diagnose() -> dict[str, object]:
-    """Time the diagnosis of each case in :data:`CASES` (25 s at 2 ms: 12,500 samples).
+    """Time the evidence stage and the whole diagnosis of each case in :data:`CASES` (25 s
+    at 2 ms: 12,500 samples).
 
     Per case: wall time, simulations, wall time of one replay of the nominal (the unit of
     cost: wall / replay is the diagnosis's cost in simulations, independent of the machine's
     load), stages, and whether the hidden effect was named. ``table``: a printable summary."""
-    out: dict[str, object] = {"cpus": os.cpu_count(), "budget_s": BUDGET_S}
-    worst = 0.0
+    out: dict[str, object] = {
+        "cpus": os.cpu_count(),
+        "budget_s": BUDGET_S,
+        "evidence_budget_s": EVIDENCE_BUDGET_S,
+    }
+    worst = worst_ev = 0.0
     rows = []
     for case in CASES:
         gen = generate(case)
@@ -51,11 +59,14 @@ def bench_diagnose() -> dict[str, object]:
         d = diagnose(gen.recording, gen.nominal, options=DiagnosisOptions())
         wall = time.perf_counter() - t0
         worst = max(worst, wall)
+        evidence = d.timings_s["evidence"]
+        worst_ev = max(worst_ev, evidence)
         expected = [case.effect.value] if case.effect else []
         named = [e.value for e in d.left_out]
         out[case.name] = {
             "samples": len(gen.recording),
             "wall_s": round(wall, 2),
+            "evidence_s": round(evidence, 2),
             "simulations": d.n_simulations,
             "one_replay_s": round(one, 4),
             "wall_in_replays": round(wall / one, 1),
@@ -65,17 +76,22 @@ def bench_diagnose() -> dict[str, object]:
         }
         stages = ", ".join(f"{k} {v:.1f}" for k, v in d.timings_s.items() if k != "total")
         rows.append(
-            f"  {case.name:14s} {len(gen.recording):6d} {wall:7.1f} {d.n_simulations:5d} "
-            f"{1000 * one:8.1f} {wall / one:7.0f}  {'yes' if named == expected else 'NO':3s}  "
-            f"{stages}"
+            f"  {case.name:14s} {len(gen.recording):6d} {evidence:10.2f} {wall:7.2f} "
+            f"{d.n_simulations:5d} {1000 * one:8.1f} {wall / one:7.0f}  "
+            f"{'yes' if named == expected else 'NO':3s}  {stages}"
         )
     out["worst_wall_s"] = round(worst, 2)
-    out["within_budget"] = worst <= BUDGET_S
+    out["worst_evidence_s"] = round(worst_ev, 2)
+    out["within_budget"] = worst <= BUDGET_S and worst_ev <= EVIDENCE_BUDGET_S
     head = (
-        f"diagnosis of 25 s recordings (budget {BUDGET_S:g} s each, {os.cpu_count()} cpus):\n"
-        "  case          samples  wall s  sims  replay ms  wall/replay  ok   stages s"
+        f"diagnosis of 25 s recordings (budget: evidence {EVIDENCE_BUDGET_S:g} s, whole "
+        f"{BUDGET_S:g} s each; {os.cpu_count()} cpus):\n"
+        "  case          samples evidence s  wall s  sims  replay ms  wall/replay  ok   stages s"
     )
-    verdict = f"  worst {worst:.1f} s: {'within' if worst <= BUDGET_S else 'OVER'} budget"
+    verdict = (
+        f"  worst evidence {worst_ev:.2f} s, whole {worst:.2f} s: "
+        f"{'within' if out['within_budget'] else 'OVER'} budget"
+    )
     out["table"] = "\n".join([head, *rows, verdict])
     return out
 

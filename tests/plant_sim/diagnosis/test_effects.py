@@ -2,34 +2,21 @@
 
 from __future__ import annotations
 
-import math
 import re
 
-import numpy as np
 import pytest
 
 from plant_sim.diagnosis.effects import (
     EFFECT_KEYS,
     GENERIC_EXPERIMENT,
-    MODELS,
     Effect,
     effects_in,
     experiment_for,
 )
-from plant_sim.diagnosis.evidence import (
-    DataScales,
-    Evidence,
-    data_scales,
-    inverse_dynamics,
-    periodic_peaks,
-)
-from plant_sim.diagnosis.parameters import contact_antiresonance
-from plant_sim.diagnosis.replay import prepare_replay, replay
+from plant_sim.diagnosis.parameters import contact_antiresonance, options_for
+from plant_sim.diagnosis.screen import effect_values
 from plant_sim.diagnosis.synthetic import slide_axis
-from plant_sim.physics.model import KernelOptions, default_substeps
-from plant_sim.physics.simulate import References, simulate
 from virtual_bus.formats.axis import AxisConfig
-from virtual_bus.formats.trace import Trace
 from virtual_bus.shipped import SHARED_DIR
 
 SPEC = SHARED_DIR / "spec" / "axis-file.md"
@@ -90,70 +77,27 @@ def test_confusable_pairs_get_an_experiment_that_separates_them(
     assert word in text, text
 
 
-def _recording(axis: AxisConfig, seconds: float = 8.0) -> Trace:
-    cycle = axis.control.position_cycle
-    t = np.arange(round(seconds / cycle)) * cycle
-    x = 0.1 + 0.08 * np.sin(2 * np.pi * t / 2.0) + 0.02 * np.sin(2 * np.pi * t / 0.45)
-    opts = KernelOptions(substeps=default_substeps(axis))
-    sim = simulate(axis, References.from_position(x, cycle), options=opts)
-    cols = (
-        "time",
-        "position_reference",
-        "motor_position",
-        "load_position",
-        "motor_speed",
-        "motor_torque",
-    )
-    return Trace({c: sim[c][::2] for c in cols})
-
-
-def test_inverse_dynamics_starting_values() -> None:
-    """A recording whose torque is the rigid-body balance τ = J·k_r·a + c·sign(v) + b·v + τ0
-    exactly: the regression returns J (as the load mass), c, b and τ0."""
-    axis = rigid_axis()
-    kr = axis.transmission_ratio
-    t = np.arange(0.0, 8.0, 0.002)
-    w1, w2 = 2 * np.pi / 2.0, 2 * np.pi / 0.45
-    x = 0.1 + 0.08 * np.sin(w1 * t) + 0.02 * np.sin(w2 * t)
-    v = 0.08 * w1 * np.cos(w1 * t) + 0.02 * w2 * np.cos(w2 * t)
-    a = -0.08 * w1**2 * np.sin(w1 * t) - 0.02 * w2**2 * np.sin(w2 * t)
-    tau = axis.total_inertia * kr * a + 0.08 * np.sign(v) + 0.4 * v + 0.01
-    rec = Trace({"time": t, "position_reference": x, "motor_position": kr * x, "motor_torque": tau})
-    inp = prepare_replay(rec, axis)
-    est = inverse_dynamics(inp, axis, data_scales(inp))
-    assert est["mechanics.load_mass"] == pytest.approx(25.0, rel=0.02)
-    assert est["friction.coulomb"] == pytest.approx(0.08, rel=0.02)
-    assert est["friction.viscous"] == pytest.approx(0.4, rel=0.02)
-    assert est["disturbance.constant_torque"] == pytest.approx(0.01, abs=1e-3)
-
-
-def test_periodic_peaks_find_period_amplitude_phase() -> None:
-    rng = np.random.default_rng(1)
-    n = 20_000
-    t = np.arange(n) * 0.002
-    x = 0.15 + 0.1 * np.sin(2 * np.pi * t / 7.0)
-    v = np.gradient(x, t)
-    amp, period, phase = 0.02, 0.011, 0.9
-    r = amp * np.sin(2 * np.pi * x / period + phase) + 0.02 * rng.standard_normal(n)
-    scales = DataScales(
-        1.0, 1.0, float(np.max(np.abs(v))), float(np.ptp(x)), 0.01, 0.002, v, np.gradient(v, t), x
-    )
-    (p, a, b), *_ = periodic_peaks(r, scales)
-    assert p == pytest.approx(period, rel=0.01)
-    assert math.hypot(a, b) == pytest.approx(amp, rel=0.1)
-    assert math.atan2(b, a) == pytest.approx(phase, abs=0.15)
-
-
 def test_backlash_on_a_rigid_model_adds_a_stiff_contact() -> None:
+    """Free play needs a contact stiffness; on a rigid model the evidence stage adds a stiff
+    one (ten times the speed loop's bandwidth, integrable in 3 substeps), and none on a
+    lumped model (no motor-side inertia to be elastic against)."""
     axis = rigid_axis()
-    inp = prepare_replay(_recording(axis), axis)
-    ev = Evidence(inp, replay(axis, inp), data_scales(inp))
-    cand = MODELS[Effect.BACKLASH].candidate(axis, axis, ev, 4)
-    specs, notes = cand.specs, cand.notes
-    base = specs[0].base
-    assert base.mechanics.antiresonance == pytest.approx(contact_antiresonance(axis))
-    # the contact is much stiffer than the speed loop is fast, and integrable (<= 3 substeps)
+    values, why = effect_values(Effect.BACKLASH, {"mechanics.backlash": 8e-6}, axis)
+    assert not why
+    assert values["mechanics.antiresonance"] == pytest.approx(contact_antiresonance(axis))
     assert contact_antiresonance(axis) > 5 * axis.control.ksp / axis.total_inertia
-    assert specs[0].options.substeps <= 3
-    assert any("antiresonance" in n for n in notes)
-    assert [p.key for p in specs[0].parameters] == ["mechanics.backlash"]
+    assert options_for(contact_antiresonance(axis), axis).substeps <= 3
+    lumped = axis.with_values({"mechanics.motor_inertia": 0.0, "mechanics.screw_inertia": 0.0})
+    values, why = effect_values(Effect.BACKLASH, {"mechanics.backlash": 8e-6}, lumped)
+    assert values == {} and "motor-side inertia" in why
+
+
+def test_an_unphysical_estimate_adds_nothing() -> None:
+    axis = rigid_axis().with_values({"friction.coulomb": None})
+    for effect, est in (
+        (Effect.COULOMB_FRICTION, {"friction.coulomb": -0.01}),
+        (Effect.STRIBECK_FRICTION, {"friction.stribeck": -0.01, "friction.stribeck_speed": 0.01}),
+        (Effect.SENSOR_TIME_OFFSET, {"control.sensor_time_offset": 0.2}),
+    ):
+        values, why = effect_values(effect, est, axis)
+        assert values == {} and why, effect

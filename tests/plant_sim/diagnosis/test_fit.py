@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from plant_sim.diagnosis.errors import DiagnosisOptionError
-from plant_sim.diagnosis.evidence import data_scales, inverse_dynamics
+from plant_sim.diagnosis.evidence import data_scales
 from plant_sim.diagnosis.fit import (
     PERIODIC_COS,
     PERIODIC_SIN,
@@ -19,7 +19,7 @@ from plant_sim.diagnosis.fit import (
     axis_with,
     fit,
 )
-from plant_sim.diagnosis.parameters import nominal_spec
+from plant_sim.diagnosis.parameters import parameter_for
 from plant_sim.diagnosis.replay import prepare_replay
 from plant_sim.diagnosis.synthetic import slide_axis
 from plant_sim.physics.model import KernelOptions
@@ -89,9 +89,12 @@ def test_refit_recovers_parameters_from_a_bad_start(factor: float) -> None:
         }
     )
     obj = objective(nominal, rec)
-    inp = obj.inp
-    scales = data_scales(inp)
-    spec = nominal_spec(nominal, scales, inverse_dynamics(inp, nominal, scales), n_global=6)
+    scales = data_scales(obj.inp)
+    keys = ("mechanics.load_mass", "friction.coulomb", "friction.viscous")
+    params = tuple(
+        parameter_for(k, float(nominal.value(k)), scales, nominal, nominal) for k in keys
+    )
+    spec = FitSpec(nominal, params, n_global=6)
     result = fit(spec, obj, max_nfev=30, n_starts=2)
     assert result.values["mechanics.load_mass"] == pytest.approx(25.0, rel=0.02)
     assert result.values["friction.coulomb"] == pytest.approx(0.08, rel=0.05)

@@ -9,7 +9,6 @@ import pytest
 
 from plant_sim.diagnosis.metrics import (
     autocorrelation_time,
-    f_test,
     fit_percent,
     improvement_test,
     information_criterion,
@@ -54,20 +53,6 @@ def test_newey_west_variance_of_ar1_sum() -> None:
     x = _ar1(a, n, np.random.default_rng(2))
     expected = n / (1 - a * a) * (1 + a) / (1 - a)
     assert newey_west_variance(x, 200) == pytest.approx(expected, rel=0.1)
-
-
-def test_f_test_matches_critical_value() -> None:
-    from scipy import stats
-
-    # choose RSS values whose F equals the 1 % critical value: p must be 0.01
-    n_eff, k0, k1 = 200.0, 3, 5
-    crit = stats.f.ppf(0.99, k1 - k0, n_eff - k1)
-    rss1 = 1.0
-    rss0 = rss1 + crit * (k1 - k0) * rss1 / (n_eff - k1)
-    f, p = f_test(rss0, rss1, k0, k1, n_eff)
-    assert f == pytest.approx(crit)
-    assert p == pytest.approx(0.01, rel=1e-6)
-    assert f_test(1.0, 1.1, k0, k1, n_eff) == (0.0, 1.0)
 
 
 def test_information_criterion_penalises_parameters() -> None:

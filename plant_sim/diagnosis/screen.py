@@ -1,0 +1,826 @@
+"""Evidence first: which effects of the axis-file table the measured signals show, before any
+closed-loop fit (stage 1 of :func:`.engine.diagnose`; docs/diagnosis.md, "Evidence").
+
+Every effect the model lacks is tested where it acts, by regressors linear in its parameters:
+
+* on the **torque balance** from the measured motion (:mod:`.idim`, the inverse dynamic model
+  of the EMPS authors): friction laws, load torques, position-periodic torque, and an elastic
+  element with one measuring system;
+* on the **deflection** between two measuring systems (:mod:`.deflection`): compliance, free
+  play (lost motion at reversals), a sensor time offset;
+* through the **loop** (:mod:`.loop_tests`): a dead time, a torque limit, and free play with
+  one measuring system, by their signature in the closed-loop replay.
+
+Each relation is fitted on the recording and on the replay of the current model with the same
+estimator (:mod:`.regression`): the replay calibrates what the estimator does by itself.
+Each test's null distribution comes from the recording's own residual (:mod:`.randomization`),
+at the level ``alpha`` divided by the number of effects tested (Bonferroni): the family's
+false-alarm rate per round is ``alpha``.
+
+Forward selection: the effect with the largest z among those significant is named — unless
+another significant effect of the same relation explains it (the named one adds nothing to
+it, it adds to the named one: it dominates and is named instead); two that explain each other
+are ambiguous, the one with fewer parameters is named and the held-out comparison of the
+closed-loop stage decides (:mod:`.closed_loop`). The named effect joins the model at its
+estimate, the model's base parameters move to their calibrated estimates (within their
+data-sheet uncertainty), the replay is redone and the next round tests the rest. Effects of
+the control path are tested once the plant effects are in (their signature is taken against
+the model with them).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from concurrent.futures import Executor
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from virtual_bus.formats.axis import AxisConfig
+from virtual_bus.formats.errors import AxisFileError
+from virtual_bus.formats.trace import Trace
+
+from ..physics.model import KernelOptions
+from . import deflection as dfl
+from . import idim
+from .effects import MODELS, Effect, effects_in
+from .errors import DiagnosisInputError
+from .evidence import DataScales, data_scales
+from .fit import PERIODIC_COS, PERIODIC_SIN
+from .loop_tests import NAME as LOOP_NAME
+from .loop_tests import loop_candidates, loop_tests
+from .measured import Measured, measured, measurement_noise, with_noise
+from .parameters import (
+    CONTACT_DAMPING,
+    contact_antiresonance,
+    max_antiresonance,
+    options_for,
+    physical,
+    uncertainty_box,
+)
+from .regression import Candidate, EffectTest, Fitted, Relation, evaluate_candidates, fit_relation
+from .replay import ReplayInput, like_recording, replay
+
+#: Effects tested through the loop (after the plant effects).
+LOOP_EFFECTS = frozenset({Effect.TIME_DELAY, Effect.TORQUE_SATURATION})
+#: A loop test whose p was below this is run again once the model changed (a plant effect
+#: named); above it the loop showed nothing and its verdict stands.
+LOOP_AGAIN_P = 0.05
+#: Standard errors beyond the data-sheet box before the evidence says the data sheet is wrong.
+DATASHEET_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One test of one effect in one round."""
+
+    effect: Effect
+    round: int
+    relation: str
+    statistic: float
+    p: float
+    z: float
+    alpha: float
+    significant: bool
+    named: bool
+    estimate: dict[str, float]
+    replay_estimate: dict[str, float]
+    n_blocks: int
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class ParameterEvidence:
+    """A model parameter as the evidence estimates it, against its data sheet."""
+
+    key: str
+    nominal: float | None
+    estimate: float
+    standard_error: float
+    box: tuple[float, float] | None  # data-sheet uncertainty box
+    beyond: bool  # the evidence says the data sheet is wrong
+    relation: str
+
+
+@dataclass
+class Screening:
+    """What the evidence stage found (:func:`screen`)."""
+
+    named: list[Effect]
+    model: AxisConfig
+    verdicts: list[Verdict]
+    ambiguous: list[tuple[Effect, Effect]]
+    parameters: list[ParameterEvidence]
+    not_tested: dict[Effect, str]
+    alpha: float
+    alpha_each: float
+    relations: dict[str, dict[str, float]]
+    n_replays: int
+    seconds: float
+    estimates: dict[Effect, dict[str, float]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+# ----------------------------------------------------------------------------------------
+# estimates -> axis values
+# ----------------------------------------------------------------------------------------
+def _with_contact(model: AxisConfig) -> AxisConfig | None:
+    """``model`` with a stiff contact for free play when it is rigid (None: a lumped rigid
+    model has no motor-side inertia for one)."""
+    if not model.is_rigid:
+        return model
+    wa = contact_antiresonance(model)
+    if not wa > 0.0:
+        return None
+    return model.with_values(
+        {"mechanics.antiresonance": wa, "mechanics.damping_ratio": CONTACT_DAMPING}
+    )
+
+
+def effect_values(
+    effect: Effect, est: Mapping[str, float], model: AxisConfig
+) -> tuple[dict[str, float | None], str]:
+    """Axis-file values that add ``effect`` at its estimate to ``model`` ({} and the reason
+    when the estimate is not physical)."""
+    fr = model.friction
+    if effect is Effect.COULOMB_FRICTION:
+        c = est.get("friction.coulomb", 0.0)
+        return ({"friction.coulomb": c}, "") if c > 0.0 else ({}, f"Coulomb friction {c:.3g} < 0")
+    if effect is Effect.VISCOUS_FRICTION:
+        b = est.get("friction.viscous", 0.0)
+        return ({"friction.viscous": b}, "") if b > 0.0 else ({}, f"viscous friction {b:.3g} < 0")
+    if effect is Effect.ASYMMETRIC_FRICTION:
+        cn = (fr.coulomb or 0.0) + est.get(idim.DELTA_COULOMB_NEG, 0.0)
+        vn = (fr.viscous or 0.0) + est.get(idim.DELTA_VISCOUS_NEG, 0.0)
+        if cn < 0.0 or vn < 0.0:
+            return {}, f"negative friction in the negative direction ({cn:.3g}, {vn:.3g})"
+        return {"friction.coulomb_negative": cn, "friction.viscous_negative": vn}, ""
+    if effect is Effect.STRIBECK_FRICTION:
+        s, vs = est.get("friction.stribeck", 0.0), est.get("friction.stribeck_speed", 0.0)
+        if not (s > 0.0 and vs > 0.0):
+            return {}, f"Stribeck excess {s:.3g} <= 0 (friction falling towards zero speed)"
+        return {"friction.stribeck": s, "friction.stribeck_speed": vs}, ""
+    if effect is Effect.CONSTANT_LOAD_TORQUE:
+        return {"disturbance.constant_torque": est.get("disturbance.constant_torque", 0.0)}, ""
+    if effect is Effect.PERIODIC_DISTURBANCE:
+        c, s = est.get(PERIODIC_COS, 0.0), est.get(PERIODIC_SIN, 0.0)
+        return {
+            "disturbance.periodic_amplitude": math.hypot(c, s),
+            "disturbance.periodic_period": est["disturbance.periodic_period"],
+            "disturbance.periodic_phase": math.atan2(s, c),
+        }, ""
+    if effect is Effect.COMPLIANCE:
+        return _compliance_values(est, model)
+    if effect is Effect.BACKLASH:
+        d = est.get("mechanics.backlash", 0.0)
+        if not 0.0 < d <= 0.1:
+            return {}, f"free play {d:.3g} outside (0, 0.1]"
+        values: dict[str, float | None] = {"mechanics.backlash": d}
+        if model.is_rigid:
+            on = _with_contact(model)
+            if on is None:
+                return (
+                    {},
+                    "free play needs a contact stiffness: the model has no motor-side inertia",
+                )
+            values["mechanics.antiresonance"] = on.mechanics.antiresonance
+            values["mechanics.damping_ratio"] = on.mechanics.damping_ratio
+        return values, ""
+    if effect is Effect.SENSOR_TIME_OFFSET:
+        o = est.get("control.sensor_time_offset", 0.0)
+        if not abs(o) <= 0.05:
+            return {}, f"sensor time offset {o:.3g} s outside ±0.05 s"
+        return {"control.sensor_time_offset": o}, ""
+    if effect is Effect.TIME_DELAY:
+        return {"control.delay": est["control.delay"]}, ""
+    if effect is Effect.TORQUE_SATURATION:
+        return {"control.torque_limit": est["control.torque_limit"]}, ""
+    return {}, "no estimate"
+
+
+def _compliance_values(
+    est: Mapping[str, float], model: AxisConfig
+) -> tuple[dict[str, float | None], str]:
+    mass = model.mechanics.load_mass
+    wmax = max_antiresonance(model, 50)
+    if not wmax > 0.0:
+        return {}, "an elastic element needs motor-side inertia; the model lumps it all in the load"
+    if dfl.FLEXIBILITY in est:
+        flex = est[dfl.FLEXIBILITY]
+        damping = est.get(dfl.DAMPING, 0.0)
+        if model.mechanics.antiresonance is not None:
+            # on top of the stiff contact that came with free play (a known term there)
+            known = dfl.model_values(model)
+            flex += known[dfl.FLEXIBILITY]
+            damping += known[dfl.DAMPING]
+        if not flex > 0.0:
+            return {}, f"negative flexibility {flex:.3g}"
+        wa = math.sqrt(1.0 / (flex * mass))
+        xi = 0.5 * damping * wa
+    else:
+        kappa = est.get(idim.COMPLIANCE_KEY, 0.0)
+        if not kappa > 0.0:
+            return {}, f"M/ω_a² = {kappa:.3g} <= 0"
+        wa = math.sqrt(mass / kappa)
+        xi = 0.05
+    wa = min(wa, 0.99 * wmax)
+    xi = min(0.7, max(0.005, xi))
+    return {"mechanics.antiresonance": wa, "mechanics.damping_ratio": xi}, ""
+
+
+#: Relation keys that are axis keys (the others are converted).
+_AXIS_KEYS = (
+    "mechanics.load_mass",
+    "friction.coulomb",
+    "friction.viscous",
+    "friction.coulomb_negative",
+    "friction.viscous_negative",
+    "friction.stribeck",
+    "disturbance.constant_torque",
+    "mechanics.backlash",
+    "control.sensor_time_offset",
+)
+
+
+def base_values(
+    corrected: Mapping[str, float], model: AxisConfig, nominal: AxisConfig, clip: bool = True
+) -> dict[str, float]:
+    """Axis values of a relation's calibrated base estimates, each within its data-sheet box
+    when ``clip`` (a key the nominal lacks, or one of a named effect, is not clipped)."""
+    out: dict[str, float] = {}
+    for k in _AXIS_KEYS:
+        if k in corrected:
+            out[k] = corrected[k]
+    if PERIODIC_COS in corrected and PERIODIC_SIN in corrected:
+        c, s = corrected[PERIODIC_COS], corrected[PERIODIC_SIN]
+        out["disturbance.periodic_amplitude"] = math.hypot(c, s)
+        out["disturbance.periodic_phase"] = math.atan2(s, c)
+    mass = out.get("mechanics.load_mass", model.mechanics.load_mass)
+    wa0 = model.mechanics.antiresonance
+    if wa0 and dfl.FLEXIBILITY in corrected and corrected[dfl.FLEXIBILITY] > 0.0:
+        wa = math.sqrt(1.0 / (corrected[dfl.FLEXIBILITY] * mass))
+        # a calibrated correction, not a new estimate: within a factor 2 of the model's
+        if 0.5 * wa0 <= wa <= 2.0 * wa0:
+            out["mechanics.antiresonance"] = min(wa, 0.99 * max(max_antiresonance(model, 50), 1e-9))
+            if dfl.DAMPING in corrected:
+                xi = 0.5 * corrected[dfl.DAMPING] * wa
+                if 0.0 <= xi <= 1.0:
+                    out["mechanics.damping_ratio"] = xi
+    final = {}
+    for k, v in out.items():
+        if not math.isfinite(v):
+            continue
+        if clip:
+            box = uncertainty_box(k, nominal)
+            if box is not None:
+                v = min(box[1], max(box[0], v))
+        final[k] = v
+    return final
+
+
+def _safe(model: AxisConfig, values: Mapping[str, float | None]) -> AxisConfig:
+    """``model`` with every value it accepts (an out-of-range one is left as it was)."""
+    try:
+        return model.with_values(values)
+    except AxisFileError:
+        ok = dict(values)
+        for k in list(values):
+            try:
+                model.with_values({k: values[k]})
+            except AxisFileError:
+                ok.pop(k)
+        try:
+            return model.with_values(ok)
+        except AxisFileError:
+            return model
+
+
+# ----------------------------------------------------------------------------------------
+# the stage
+# ----------------------------------------------------------------------------------------
+#: Noise draws of a calibration replay (their mean calibrates; the null is widened by 1/R).
+REPLAY_DRAWS = 2
+
+
+@dataclass
+class _Round:
+    relations: dict[str, tuple[Relation, list[Relation]]]
+    fitted: dict[str, Fitted]
+    simulated: Trace
+    m_sims: list[Measured]
+    noise: dict[str, float]
+    force: np.ndarray | None  # load-side force of the recording (two systems)
+    sim_forces: list[np.ndarray]
+
+
+class _Unstable(Exception):
+    """The closed-loop replay of a model diverged (non-finite signals)."""
+
+
+def _kernel_options(model: AxisConfig) -> KernelOptions:
+    return options_for(model.mechanics.antiresonance, model)
+
+
+def _calibrate(
+    inp: ReplayInput,
+    recording: Trace,
+    m_rec: Measured,
+    model: AxisConfig,
+    scans: idim.Scans,
+    seed: int,
+    effects: frozenset[Effect] = frozenset(),
+    contact: bool = False,
+) -> _Round:
+    """Replay ``model`` like the recording, give it the recording's measurement noise
+    (:func:`.measured.measurement_noise`, REPLAY_DRAWS independent draws) and build every
+    relation on the recording and on the draws (the deflection with the load-side force of
+    the calibrated torque balance; ``contact``: :func:`.deflection.deflection_relation`)."""
+    sim = replay(model, inp, _kernel_options(model))
+    used = ("motor_position", "load_position", "motor_speed", "motor_torque")
+    if not all(np.all(np.isfinite(sim[c])) for c in used if c in sim.names):
+        raise _Unstable(model)
+    like = like_recording(inp, sim)
+    noise = measurement_noise(recording, like)
+    rng = np.random.default_rng(seed)
+    m_sims = [measured(with_noise(like, noise, rng), model) for _ in range(REPLAY_DRAWS)]
+    t_rec = idim.torque_relation(m_rec, model, scans)
+    t_sims = [idim.torque_relation(ms, model, scans) for ms in m_sims]
+    rels: dict[str, tuple[Relation, list[Relation]]] = {idim.NAME: (t_rec, t_sims)}
+    fitted = {
+        idim.NAME: fit_relation(t_rec, t_sims, idim.torque_candidates(m_rec, model, scans, effects))
+    }
+    force = None
+    sim_forces: list[np.ndarray] = []
+    if m_rec.two_systems:
+        coef = fitted[idim.NAME].corrected
+        kr = model.transmission_ratio
+        force = dfl.load_side_force(t_rec.columns, coef, kr)
+        sim_forces = [dfl.load_side_force(t.columns, coef, kr) for t in t_sims]
+        thr = dfl.force_threshold(force)
+        d_rec = dfl.deflection_relation(m_rec, model, force, thr, t_rec.mask, contact)
+        d_sims = [
+            dfl.deflection_relation(ms, model, f, thr, t.mask, contact)
+            for ms, f, t in zip(m_sims, sim_forces, t_sims, strict=True)
+        ]
+        if d_rec is not None:
+            rels[dfl.NAME] = (d_rec, [d for d in d_sims if d is not None])
+            cands = dfl.deflection_candidates(m_rec, force, effects)
+            fitted[dfl.NAME] = fit_relation(*rels[dfl.NAME], cands)
+    return _Round(rels, fitted, sim, m_sims, noise, force, sim_forces)
+
+
+def _plant_candidates(
+    m: Measured,
+    force: np.ndarray | None,
+    model: AxisConfig,
+    scans: idim.Scans,
+    effects: frozenset[Effect],
+    period: idim.PeriodChoice | None = None,
+) -> list[Candidate]:
+    out = idim.torque_candidates(m, model, scans, effects, period)
+    if force is not None:
+        out += dfl.deflection_candidates(m, force, effects)
+    return out
+
+
+def _period(rnd: _Round, m_rec: Measured, scans: idim.Scans) -> idim.PeriodChoice | None:
+    """The period of the torque balance residual's largest peak over position (recording)."""
+    if scans.period_band is None:
+        return None
+    rec = rnd.relations[idim.NAME][0]
+    f = rnd.fitted[idim.NAME]
+    keys = list(f.keys)
+    fitted = rec.matrix(keys) @ np.array([f.recording[k] for k in keys]) if keys else 0.0
+    return idim.choose_period(m_rec, rec.y - fitted, rec.mask, scans.period_band)
+
+
+def _plant_tests(
+    rnd: _Round,
+    m_rec: Measured,
+    model: AxisConfig,
+    scans: idim.Scans,
+    effects: frozenset[Effect],
+    rng: np.random.Generator,
+) -> dict[Effect, EffectTest]:
+    period = _period(rnd, m_rec, scans) if Effect.PERIODIC_DISTURBANCE in effects else None
+    cands = _plant_candidates(m_rec, rnd.force, model, scans, effects, period)
+    forces: list[np.ndarray | None] = list(rnd.sim_forces) or [None] * len(rnd.m_sims)
+    sim_cands = [
+        {c.effect: c for c in _plant_candidates(ms, f, model, scans, effects, period)}
+        for ms, f in zip(rnd.m_sims, forces, strict=True)
+    ]
+    out: dict[Effect, EffectTest] = {}
+    for name, (rec, reps) in rnd.relations.items():
+        mine = [c for c in cands if c.relation == name]
+        if mine:
+            out.update(
+                evaluate_candidates(rec, reps, rnd.fitted[name], mine, sim_cands[: len(reps)], rng)
+            )
+    return out
+
+
+def _conditional_p(
+    rnd: _Round,
+    m_rec: Measured,
+    model: AxisConfig,
+    scans: idim.Scans,
+    given: EffectTest,
+    tested: Effect,
+    rng: np.random.Generator,
+) -> float:
+    """p of ``tested`` with ``given``'s regressors (at its best scan point) added to the base
+    of their common relation (on the recording; the calibration's offsets are small next to
+    an effect that is significant, and this asks only whether one explains the other)."""
+    rec = rnd.relations[given.relation][0]
+    period = _period(rnd, m_rec, scans)
+    cands = {
+        c.effect: c
+        for c in _plant_candidates(
+            m_rec, rnd.force, model, scans, frozenset({given.effect, tested}), period
+        )
+        if c.relation == given.relation
+    }
+    if given.effect not in cands or tested not in cands:
+        return 0.0
+    cols = cands[given.effect].scan[given.test.best]
+    extended = Relation(
+        rec.name, rec.y, {**rec.columns, **{f"given {k}": v for k, v in cols.items()}}, rec.mask
+    )
+    res = evaluate_candidates(extended, [], fit_relation(extended), [cands[tested]], [], rng)
+    return res[tested].p if tested in res else 0.0
+
+
+def _choose(
+    significant: Sequence[EffectTest],
+    rnd: _Round,
+    m_rec: Measured,
+    model: AxisConfig,
+    scans: idim.Scans,
+    alpha: float,
+    rng: np.random.Generator,
+) -> tuple[EffectTest, list[tuple[Effect, Effect]]]:
+    """The effect named among the significant ones, and the ambiguous pairs (docstring of
+    the module)."""
+    ranked = sorted(significant, key=lambda t: -t.z)
+    best = ranked[0]
+    ambiguous: list[tuple[Effect, Effect]] = []
+    for other in ranked[1:]:
+        if other.relation != best.relation or other.relation == LOOP_NAME:
+            continue
+        p_best_given_other = _conditional_p(rnd, m_rec, model, scans, other, best.effect, rng)
+        p_other_given_best = _conditional_p(rnd, m_rec, model, scans, best, other.effect, rng)
+        if p_best_given_other >= alpha and p_other_given_best < alpha:
+            best = other  # it explains the best one and more
+        elif p_best_given_other >= alpha and p_other_given_best >= alpha:
+            ambiguous.append((best.effect, other.effect))
+    # among mutually ambiguous effects the one with fewer parameters is named
+    group = [best.effect] + [b for a, b in ambiguous if a is best.effect]
+    fewest = min(
+        group, key=lambda e: (len(MODELS[e].keys), -next(t.z for t in ranked if t.effect is e))
+    )
+    if fewest is not best.effect:
+        best = next(t for t in ranked if t.effect is fewest)
+        ambiguous = [(best.effect, e) for e in group if e is not best.effect]
+    return best, ambiguous
+
+
+def _judge(
+    tests: Mapping[Effect, EffectTest],
+    model: AxisConfig,
+    alpha_each: float,
+    rnd_no: int,
+    data: DataScales,
+) -> tuple[list[EffectTest], list[Verdict]]:
+    """The significant tests and the verdicts. Significant: p below the level, a physical
+    estimate, and one above the effect's "absent" value (:meth:`.effects.EffectModel.
+    significant`: 0.1 % of the peak torque for torques, 0.1 % of the following error's
+    spread for free play, 5 % of the sample time for a sensor time offset): the deflection
+    between two measuring systems is measured to a few nm, where a sensor offset of 2 µs is
+    significant and no finding."""
+    sig, out = [], []
+    for e, t in tests.items():
+        ok, note = t.p < alpha_each, ""
+        if ok:
+            vals, why = effect_values(e, t.estimate, model)
+            if not vals:
+                ok, note = False, f"significant but not physical: {why}"
+            elif not MODELS[e].significant(_safe(model, vals), data):
+                ok, note = False, "significant but below the effect's absent value"
+        if ok:
+            sig.append(t)
+        out.append(
+            Verdict(
+                effect=e,
+                round=rnd_no,
+                relation=t.relation,
+                statistic=t.test.statistic,
+                p=t.p,
+                z=t.z,
+                alpha=alpha_each,
+                significant=ok,
+                named=False,
+                estimate=dict(t.estimate),
+                replay_estimate=dict(t.replay_estimate),
+                n_blocks=t.test.n_blocks,
+                note=note,
+            )
+        )
+    return sig, out
+
+
+def _contact(named: Sequence[Effect], nominal: AxisConfig) -> bool:
+    """Free play named on a rigid model brought a stiff contact that is not fitted (until
+    compliance is named too)."""
+    return nominal.is_rigid and Effect.BACKLASH in named and Effect.COMPLIANCE not in named
+
+
+def _base_update(rnd: _Round, model: AxisConfig, nominal: AxisConfig) -> dict[str, float]:
+    """The model's parameters at their calibrated estimates, within their data-sheet box."""
+    base: dict[str, float] = {}
+    for f in rnd.fitted.values():
+        base.update(base_values(f.corrected, model, nominal))
+    return base
+
+
+#: Points of the local refinement of a scanned parameter (between the best point's
+#: neighbours on the scan).
+REFINE_POINTS = 17
+
+
+def _refine(
+    best: EffectTest, rnd: _Round, m_rec: Measured, model: AxisConfig, scans: idim.Scans
+) -> EffectTest:
+    """A named effect with a scanned parameter (Stribeck speed, period): the parameter
+    refined between the best scan point's neighbours (least squares on the recording), the
+    coefficients re-fitted there. Estimation only: the test was the scan's."""
+    if best.effect is Effect.STRIBECK_FRICTION:
+        grid, key = scans.stribeck_speeds, "friction.stribeck_speed"
+        i = best.test.best
+        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    elif best.effect is Effect.PERIODIC_DISTURBANCE:
+        key = "disturbance.periodic_period"
+        p0, span = best.estimate[key], float(np.ptp(m_rec.load_position))
+        # within a quarter of a period's drift over the travel either way
+        lo, hi = p0 / (1.0 + p0 / span), p0 * (1.0 + p0 / span)
+    else:
+        return best
+    rec = rnd.relations[idim.NAME][0]
+    f = rnd.fitted[idim.NAME]
+    w, valid = f.whitener, f.valid
+    keys = list(f.keys)
+    xw = w.apply(rec.matrix(keys))[valid]
+    yw = w.apply(rec.y)[valid]
+    found = (math.inf, best.estimate)
+    for value in np.geomspace(lo, hi, REFINE_POINTS):
+        cols = idim.scan_columns(best.effect, m_rec, float(value))
+        z = w.apply(np.column_stack(list(cols.values())))[valid]
+        design = np.column_stack([xw, z])
+        coef, *_ = np.linalg.lstsq(design, yw, rcond=None)
+        rss = float(np.sum((yw - design @ coef) ** 2))
+        if rss < found[0]:
+            est = {k: float(c) for k, c in zip(cols, coef[len(keys) :], strict=True)}
+            est[key] = float(value)
+            found = (rss, est)
+    return replace(best, estimate=found[1])
+
+
+def screen(
+    inp: ReplayInput,
+    recording: Trace,
+    nominal: AxisConfig,
+    effects: Sequence[Effect],
+    alpha: float,
+    max_effects: int,
+    seed: int,
+    pool: Executor | None = None,
+) -> Screening:
+    """The evidence stage (module docstring)."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    m_rec = measured(recording, nominal)
+    scans = idim.scans_for(m_rec)
+    data = data_scales(inp)
+    following = float(np.std(m_rec.reference - m_rec.feedback))
+    candidates = frozenset(effects) - effects_in(nominal)
+    not_tested: dict[Effect, str] = {}
+    plant_effects = candidates - LOOP_EFFECTS
+    testable_plant = set()
+    for e in plant_effects:
+        if e in (Effect.BACKLASH, Effect.SENSOR_TIME_OFFSET) and not m_rec.two_systems:
+            if e is Effect.SENSOR_TIME_OFFSET:
+                not_tested[e] = "needs two measuring systems (motor and load positions recorded)"
+            continue
+        if e is Effect.COMPLIANCE and not max_antiresonance(nominal, 50) > 0.0:
+            not_tested[e] = (
+                "the model lumps all inertia into the load (motor_inertia + screw_inertia = 0): "
+                "an elastic element cannot be added to it"
+            )
+            continue
+        testable_plant.add(e)
+    n_tests = len(testable_plant) + len(candidates & LOOP_EFFECTS)
+    if Effect.BACKLASH in candidates and not m_rec.two_systems:
+        n_tests += 1
+    alpha_each = alpha / max(1, n_tests)
+    model = nominal
+    named: list[Effect] = []
+    verdicts: list[Verdict] = []
+    ambiguous: list[tuple[Effect, Effect]] = []
+    estimates: dict[Effect, dict[str, float]] = {}
+    notes: list[str] = []
+    remaining = set(testable_plant)
+    loop_left = set(candidates & LOOP_EFFECTS)
+    if Effect.BACKLASH in candidates and not m_rec.two_systems:
+        loop_left.add(Effect.BACKLASH)
+    try:
+        rnd = _calibrate(
+            inp,
+            recording,
+            m_rec,
+            model,
+            scans,
+            seed,
+            frozenset(remaining),
+            _contact(named, nominal),
+        )
+    except _Unstable:
+        raise DiagnosisInputError(
+            "the axis file's closed loop diverges when replayed like the recording "
+            "(check the controller keys and the units)"
+        ) from None
+    n_replays = 1
+    # the model's own parameters where the evidence puts them (within their data-sheet
+    # uncertainty) before anything is tested through the loop
+    moved = _safe(model, _base_update(rnd, model, nominal))
+    if moved != model:
+        n_replays += 1
+        try:
+            rnd_moved = _calibrate(
+                inp,
+                recording,
+                m_rec,
+                moved,
+                scans,
+                seed,
+                frozenset(remaining),
+                _contact(named, nominal),
+            )
+        except _Unstable:
+            notes.append(
+                "the model's parameters at the evidence's values make the closed loop unstable; "
+                "they stay at the data sheet's"
+            )
+        else:
+            model, rnd = moved, rnd_moved
+    loop_model: AxisConfig | None = None
+    loop_pending = False
+    rnd_no = 0
+    while len(named) < max_effects and (remaining or loop_left):
+        rnd_no += 1
+        tests = _plant_tests(rnd, m_rec, model, scans, frozenset(remaining), rng)
+        sig, round_verdicts = _judge(tests, model, alpha_each, rnd_no, data)
+        if loop_left and loop_model is not model and (rnd_no == 1 or loop_pending):
+            lc = loop_candidates(
+                model, inp, frozenset(loop_left), not m_rec.two_systems, following, _with_contact
+            )
+            lt, n_loop = loop_tests(inp, model, _kernel_options(model), lc, rng, pool)
+            n_replays += n_loop
+            loop_model = model
+            loop_sig, loop_verdicts = _judge(lt, model, alpha_each, rnd_no, data)
+            # tested again against a changed model only where something showed (p < 0.05)
+            loop_pending = any(t.p < LOOP_AGAIN_P for t in lt.values())
+            sig += loop_sig
+            round_verdicts += loop_verdicts
+            tests.update(lt)
+        verdicts += round_verdicts
+        if not sig:
+            break
+        plant_sig = [t for t in sig if t.relation != LOOP_NAME]
+        loop_sig = [t for t in sig if t.relation == LOOP_NAME]
+        if plant_sig and loop_sig:
+            # a loop effect changes what the estimator sees (a dead time moves the sampled
+            # torque within the cycle); it is named first when, with it in the model, none
+            # of the significant plant effects is left (it explains them), else the plant
+            # effects come first and the loop is tested again against the model with them
+            lead = max(loop_sig, key=lambda t: t.z)
+            vals_l, _ = effect_values(lead.effect, lead.estimate, model)
+            trial = _safe(model, vals_l)
+            n_replays += 1
+            try:
+                rnd_l = _calibrate(
+                    inp,
+                    recording,
+                    m_rec,
+                    trial,
+                    scans,
+                    seed,
+                    frozenset(remaining),
+                    _contact(named, nominal),
+                )
+            except _Unstable:
+                sig = plant_sig  # the loop effect at its estimate explains nothing
+            else:
+                again = _plant_tests(
+                    rnd_l, m_rec, trial, scans, frozenset(t.effect for t in plant_sig), rng
+                )
+                left, _ = _judge(again, trial, alpha_each, rnd_no, data)
+                sig = [lead] if not left else plant_sig
+        best, amb = _choose(sig, rnd, m_rec, model, scans, alpha_each, rng)
+        best = _refine(best, rnd, m_rec, model, scans)
+        vals, _ = effect_values(best.effect, best.estimate, model)
+        new_model = _safe(_safe(model, _base_update(rnd, model, nominal)), vals)
+        remaining.discard(best.effect)
+        loop_left.discard(best.effect)
+        if any(new_model.value(k) != v for k, v in vals.items()):
+            notes.append(f"{best.effect.value}: its estimate gives no valid axis; not named")
+            continue
+        try:
+            new_rnd = _calibrate(
+                inp,
+                recording,
+                m_rec,
+                new_model,
+                scans,
+                seed,
+                frozenset(remaining - {b for _, b in amb}),
+                _contact([*named, best.effect], nominal),
+            )
+        except _Unstable:
+            notes.append(
+                f"{best.effect.value}: the model with its estimate is unstable in closed loop; "
+                "not named"
+            )
+            continue
+        finally:
+            n_replays += 1
+        ambiguous += amb
+        for _, b in amb:
+            remaining.discard(b)
+            loop_left.discard(b)
+        model = new_model
+        named.append(best.effect)
+        estimates[best.effect] = dict(best.estimate)
+        verdicts = [
+            replace(v, named=True, estimate=dict(best.estimate))
+            if (v.effect is best.effect and v.round == rnd_no)
+            else v
+            for v in verdicts
+        ]
+        rnd = new_rnd
+    # final calibration: every parameter of the model as the evidence estimates it
+    params: list[ParameterEvidence] = []
+    relations_info: dict[str, dict[str, float]] = {}
+    for name, (rec, _) in rnd.relations.items():
+        f = rnd.fitted[name]
+        se = f.standard_errors(rec)
+        relations_info[name] = {
+            "rows": float(f.valid.sum()),
+            "whitening_order": float(f.whitener.order),
+            "noise": f.noise,
+            "blocks": float(f.blocks.max() + 1) if f.valid.any() else 0.0,
+        }
+        for k in f.keys:
+            if k not in _AXIS_KEYS:
+                continue
+            n = nominal.value(k)
+            box = uncertainty_box(k, nominal)
+            est = f.corrected[k]
+            # a non-physical estimate (a negative mass) says the relation is inconsistent
+            # here, not that the data sheet is wrong
+            beyond = (
+                box is not None
+                and physical(k, est)
+                and (
+                    est + DATASHEET_SIGMAS * se[k] < box[0]
+                    or est - DATASHEET_SIGMAS * se[k] > box[1]
+                )
+            )
+            params.append(
+                ParameterEvidence(k, None if n is None else float(n), est, se[k], box, beyond, name)
+            )
+    # the model handed on: named effects at their calibrated estimates, base parameters at
+    # theirs, within the data-sheet box unless the evidence puts them beyond it
+    wrong = {p.key for p in params if p.beyond}
+    final_values: dict[str, float] = {}
+    for f in rnd.fitted.values():
+        clipped = base_values(f.corrected, model, nominal, clip=True)
+        free = base_values(f.corrected, model, nominal, clip=False)
+        for k in clipped:
+            final_values[k] = free[k] if k in wrong else clipped[k]
+    model = _safe(model, final_values)
+    return Screening(
+        named=named,
+        model=model,
+        verdicts=verdicts,
+        ambiguous=ambiguous,
+        parameters=params,
+        not_tested=not_tested,
+        alpha=alpha,
+        alpha_each=alpha_each,
+        relations=relations_info,
+        n_replays=n_replays,
+        seconds=time.perf_counter() - t0,
+        estimates=estimates,
+        notes=notes,
+    )

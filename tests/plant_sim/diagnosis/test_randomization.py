@@ -1,0 +1,120 @@
+"""The evidence stage's statistics against analytic results: the whitening filter against
+scipy's own FIR filter and a known AR process, the long-run correlation length against the
+AR(1) formula, and the tests' null distributions against the uniform distribution of
+p-values they must give on noise (binomial bounds), with power on a planted signal."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import signal as sps
+from scipy import stats
+
+from plant_sim.diagnosis.randomization import (
+    Whitener,
+    face_value_test,
+    fit_whitener,
+    long_run_tau,
+    scan_test,
+    time_blocks,
+)
+
+
+def _ar(coefs: list[float], n: int, rng: np.random.Generator) -> np.ndarray:
+    return sps.lfilter([1.0], [1.0, *[-c for c in coefs]], rng.standard_normal(n + 500))[500:]
+
+
+def test_whitener_applies_the_fir_filter_scipy_applies() -> None:
+    rng = np.random.default_rng(0)
+    w = Whitener(np.array([1.0, -0.6, 0.2, -0.05]))
+    x = rng.standard_normal((400, 3))
+    ours = w.apply(x)
+    ref = sps.lfilter(w.coef, [1.0], x, axis=0)
+    assert np.allclose(ours[w.order :], ref[w.order :])
+    mask = np.ones(400, dtype=bool)
+    mask[100] = False
+    valid = w.valid(mask)
+    assert not valid[100:104].any() and valid[104] and not valid[: w.order].any()
+
+
+def test_yule_walker_recovers_an_ar2_process() -> None:
+    rng = np.random.default_rng(1)
+    x = _ar([1.2, -0.5], 20_000, rng)
+    w = fit_whitener(x, np.ones(len(x), dtype=bool))
+    assert w.coef[:3] == pytest.approx([1.0, -1.2, 0.5], abs=0.03)
+    e = w.apply(x)[w.order :]
+    # what is left is white: no lag-1 correlation beyond 3/sqrt(n)
+    r1 = float(np.corrcoef(e[1:], e[:-1])[0, 1])
+    assert abs(r1) < 3.0 / math.sqrt(len(e))
+
+
+@pytest.mark.parametrize("a", [0.0, 0.5, 0.8])
+def test_long_run_tau_of_ar1(a: float) -> None:
+    """Var(sum)/ (n·var) of an AR(1) tends to (1 + a)/(1 − a)."""
+    rng = np.random.default_rng(2)
+    x = _ar([a], 60_000, rng)
+    assert long_run_tau(x) == pytest.approx((1 + a) / (1 - a), rel=0.25)
+
+
+def _null_ps(test: str, n_trials: int, seed: int) -> np.ndarray:
+    """p-values of a scan over 5 candidates that are not in y (AR(1) noise, 1500 rows)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    n = 1500
+    t = np.arange(n)
+    base = np.column_stack([np.ones(n), np.sin(2 * np.pi * t / 300.0)])
+    cands = [np.sin(2 * np.pi * t / p + 0.3)[:, None] for p in (40.0, 55.0, 70.0, 90.0, 120.0)]
+    for _ in range(n_trials):
+        y = 0.3 * base[:, 1] + _ar([0.5], n, rng)
+        w = fit_whitener(y - 0.3 * base[:, 1], np.ones(n, dtype=bool))
+        yw, bw = w.apply(y), w.apply(base)
+        zs = [w.apply(c) for c in cands]
+        valid = w.valid(np.ones(n, dtype=bool))
+        blocks, _ = time_blocks(
+            valid,
+            np.where(valid, yw - bw @ np.linalg.lstsq(bw[valid], yw[valid], rcond=None)[0], 0.0),
+        )
+        if test == "scan":
+            r = scan_test(yw, bw, zs, blocks, rng, replicates=1000)
+        else:
+            r = face_value_test(yw, bw, [z[:, 0] for z in zs], blocks, rng, replicates=1000)
+        out.append(r.p)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("test", ["scan", "face_value"])
+def test_false_alarm_rate_on_noise(test: str) -> None:
+    """Under the null the scan test's p is uniform: the share below 0.1 lies within the
+    binomial 99.9 % interval of 200 trials. The face-value test is conservative (a signature
+    that is not there costs its own square): its share below 0.1 is at most that bound."""
+    ps = _null_ps(test, 200, 3)
+    lo, hi = stats.binom.ppf([0.0005, 0.9995], 200, 0.1) / 200
+    share = float(np.mean(ps < 0.1))
+    if test == "scan":
+        assert lo <= share <= hi, share
+    else:
+        assert share <= hi, share
+
+
+def test_a_planted_signature_is_found_where_it_is() -> None:
+    rng = np.random.default_rng(4)
+    n = 3000
+    t = np.arange(n)
+    base = np.ones((n, 1))
+    periods = (40.0, 55.0, 70.0)
+    cands = [
+        np.column_stack([np.sin(2 * np.pi * t / p), np.cos(2 * np.pi * t / p)]) for p in periods
+    ]
+    y = 0.2 * cands[1][:, 0] + rng.standard_normal(n)
+    blocks = np.arange(n) // 20
+    r = scan_test(y, base, cands, blocks, rng)
+    assert r.best == 1 and r.p < 1e-6
+    assert r.coefficients[0] == pytest.approx(0.2, abs=0.06)
+    # the effect at its own size: the signature with gain 1 is in y, half of it is not
+    sig = 0.5 * cands[1][:, 0]
+    y2 = sig + rng.standard_normal(n)
+    assert face_value_test(y2, base, [sig], blocks, rng).p < 1e-6
+    y3 = 0.25 * sig + rng.standard_normal(n)
+    assert face_value_test(y3, base, [sig], blocks, rng).p > 0.05
