@@ -34,7 +34,6 @@ def _move(text: str) -> Move:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = DESCRIPTION
     parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
     parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
     parser.add_argument(

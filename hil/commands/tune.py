@@ -8,6 +8,8 @@ import sys
 from bridge.commands.tune import add_tuning_arguments, options_from, trial_line
 from virtual_bus import cli
 
+from .common import add_axis_and_out, simulated_axis_file
+
 NAME = "tune"
 HELP = "find beta_T by the paper's procedure on the simulated axis (offline, fast)"
 DESCRIPTION = (
@@ -19,9 +21,7 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = DESCRIPTION
-    parser.add_argument("--axis", type=cli.existing_file, required=True, help="axis file")
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="report directory")
+    add_axis_and_out(parser)
     parser.add_argument(
         "--following-error-limit",
         type=cli.positive_float,
@@ -36,7 +36,6 @@ def run(args: argparse.Namespace) -> int:
     from regulator.tuning import Outcome, TuningError, search
 
     from ..offline import base_regulator, kernel_runner, safety_of
-    from .common import simulated_axis_file
 
     axis = simulated_axis_file(args.axis)
     options = options_from(args)
