@@ -90,6 +90,25 @@ def pdo_of_cob_id(cob_id: int) -> tuple[bool, int, int] | None:
     return None
 
 
+# --- PDO parameter objects (CiA 301 7.5.2.35-38): PDO n has n-1 added to its base ----------
+RPDO_COMM_BASE = 0x1400
+RPDO_MAPPING_BASE = 0x1600
+TPDO_COMM_BASE = 0x1800
+TPDO_MAPPING_BASE = 0x1A00
+#: The last index of the four PDO parameter areas (512 TPDO mappings end at 1BFFh).
+PDO_PARAMETERS_END = 0x1BFF
+
+
+def pdo_comm_index(transmit: bool, number: int) -> int:
+    """1800h+n-1 (TPDO) or 1400h+n-1 (RPDO): communication parameter of PDO ``number``."""
+    return (TPDO_COMM_BASE if transmit else RPDO_COMM_BASE) + number - 1
+
+
+def pdo_mapping_index(transmit: bool, number: int) -> int:
+    """1A00h+n-1 (TPDO) or 1600h+n-1 (RPDO): mapping parameter of PDO ``number``."""
+    return (TPDO_MAPPING_BASE if transmit else RPDO_MAPPING_BASE) + number - 1
+
+
 def emcy_cob_id(node_id: int) -> int:
     return EMCY_BASE + _node(node_id)
 
