@@ -147,6 +147,31 @@ class NmtCommand(IntEnum):
     RESET_COMMUNICATION = 0x82
 
 
+#: The state each command that is no reset leads to (CiA 301 figure 48); the reset commands
+#: pass through Initialising (the boot-up message) to Pre-operational.
+NMT_TARGET_STATE = {
+    NmtCommand.START: NmtState.OPERATIONAL,
+    NmtCommand.STOP: NmtState.STOPPED,
+    NmtCommand.ENTER_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
+}
+
+
+def nmt_command_for(data: bytes | bytearray, node_id: int) -> NmtCommand | None:
+    """The command of an NMT frame's data (command specifier, node-ID; 0 addresses every
+    node) when it addresses ``node_id``, None when it addresses another node. ValueError
+    naming what is wrong for a frame of another length or an unknown specifier."""
+    if len(data) != NMT_LENGTH:
+        raise ValueError(f"NMT frame with {len(data)} data bytes ignored (needs {NMT_LENGTH})")
+    specifier, target = data[0], data[1]
+    if target not in (0, node_id):
+        return None
+    try:
+        return NmtCommand(specifier)
+    except ValueError:
+        allowed = ", ".join(f"0x{c:02X}" for c in NmtCommand)
+        raise ValueError(f"NMT command 0x{specifier:02X} ignored; allowed {allowed}") from None
+
+
 # --- CiA 402 controlword / statusword bits -----------------------------------------------------
 CW_SWITCH_ON = 1 << 0
 CW_ENABLE_VOLTAGE = 1 << 1
