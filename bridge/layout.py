@@ -18,8 +18,6 @@ from virtual_bus.contract import (
     heartbeat_cob_id,
     mapping_entry,
     pdo_cob_id,
-    pdo_comm_index,
-    pdo_mapping_index,
     pdo_struct,
     sdo_tx_cob_id,
     type_size,
@@ -80,16 +78,6 @@ class PdoSpec:
 
     def cob_id(self, drive_id: int) -> int:
         return pdo_cob_id(self.transmit, self.number, drive_id)
-
-    @property
-    def comm_index(self) -> int:
-        """Communication parameter of the drive (1800h+n-1 or 1400h+n-1)."""
-        return pdo_comm_index(self.transmit, self.number)
-
-    @property
-    def mapping_index(self) -> int:
-        """Mapping parameter of the drive (1A00h+n-1 or 1600h+n-1)."""
-        return pdo_mapping_index(self.transmit, self.number)
 
 
 #: TPDO1: 6064h position actual value (I32) + 60E4h:01 load scale (I32), every SYNC.
