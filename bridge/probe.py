@@ -284,9 +284,7 @@ def _node_range(text: str) -> tuple[int, ...]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
-    parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
-    parser.add_argument("--bitrate", type=int, default=1_000_000, help="bit/s (default 1000000)")
+    cli.add_can_bus(parser)
     parser.add_argument("--drive-id", type=cli.node_id, required=True, help="the drive's node-ID")
     parser.add_argument(
         "--eds",

@@ -347,6 +347,18 @@ def new_file(text: str) -> Path:
     return path
 
 
+def add_can_bus(
+    parser: argparse.ArgumentParser, bitrate: int = 1_000_000, bitrate_help: str | None = None
+) -> None:
+    """``--interface``, ``--channel`` (both required) and ``--bitrate``: the one CAN bus a
+    command opens (the fields of :class:`virtual_bus.BusConfig`)."""
+    parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
+    parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
+    parser.add_argument(
+        "--bitrate", type=int, default=bitrate, help=bitrate_help or f"bit/s (default {bitrate})"
+    )
+
+
 def add_quiet(parser: argparse.ArgumentParser) -> None:
     """``--quiet``/``-q``: no progress output (results and errors are still printed)."""
     parser.add_argument(

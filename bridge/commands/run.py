@@ -34,14 +34,8 @@ def _move(text: str) -> Move:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
-    parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
-    parser.add_argument(
-        "--bitrate",
-        type=int,
-        default=1_000_000,
-        help="bit/s, a CiA 301 rate (default 1000000: one axis at 1 ms is 44 %% of it)",
-    )
+    rates = "bit/s, a CiA 301 rate (default 1000000: one axis at 1 ms is 44 %% of it)"
+    cli.add_can_bus(parser, bitrate_help=rates)
     parser.add_argument(
         "--drive-profile",
         type=Path,

@@ -23,9 +23,7 @@ from .common import default_store_path, regulated_axis
 
 
 def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
-    parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
-    parser.add_argument("--bitrate", type=int, default=1_000_000, help="bit/s (1000000)")
+    cli.add_can_bus(parser)
     parser.add_argument("--drive-profile", type=cli.existing_file, help="drive profile (TOML)")
     parser.add_argument(
         "--node-id", type=cli.node_id, default=objdict.DEFAULT_NODE_ID, help="bridge (1)"
