@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.paths import ROOT
+
 spec = importlib.util.spec_from_file_location("dev", ROOT / "dev.py")
 assert spec is not None and spec.loader is not None
 dev = importlib.util.module_from_spec(spec)
