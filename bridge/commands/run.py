@@ -15,7 +15,7 @@ from ..master import DriveSetup
 from ..node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
 from ..profile import load_profile
 from ..timing import TimeMode
-from .common import default_store_path, regulated_axis
+from .common import add_clock_argument, default_store_path, regulated_axis
 
 NAME = "run"
 HELP = "run the bridge against a drive on a CAN interface (real time)"
@@ -83,12 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--trace", type=Path, help="trace file to write (trace-file.md)")
     parser.add_argument("--bus-log", type=Path, help="candump log of the bus traffic")
-    parser.add_argument(
-        "--clock",
-        choices=[m.value for m in TimeMode],
-        default="realtime",
-        help="realtime (default; hardware) or lockstep (simulated drives)",
-    )
+    add_clock_argument(parser)
     add_realtime_options(parser)
     parser.add_argument(
         "--overrun-limit",
