@@ -24,7 +24,8 @@ from pathlib import Path
 import can
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.paths import ROOT
+
 STATE_BOUND_S = 900.0
 
 

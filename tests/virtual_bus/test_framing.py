@@ -10,9 +10,8 @@ vcan0 (marker ``vcan``; run in a guest with a CAN stack where the host has none)
 
 from __future__ import annotations
 
-import json
 import random
-import sys
+from collections.abc import Callable
 
 import can
 import pytest
@@ -20,7 +19,6 @@ from can.interfaces.udp_multicast.utils import pack_message, unpack_message
 
 from virtual_bus.config import BusConfig, Interface
 from virtual_bus.framing import NOTHING, OTHER, MessagePort, SocketCanPort, frame_port
-from virtual_bus.netns import NetworkNamespace
 from virtual_bus.open import open_bus
 from virtual_bus.udp import own_frame_filter, parse_plain
 
@@ -183,11 +181,9 @@ print(json.dumps(out))
 
 
 def test_the_udp_port_against_python_cans_udp_multicast(
-    private_netns: NetworkNamespace, subprocess_env: dict[str, str]
+    netns_script: Callable[[str], dict],
 ) -> None:
-    done = private_netns.run([sys.executable, "-c", UDP_SCRIPT], timeout_s=60, env=subprocess_env)
-    assert done.returncode == 0, done.stderr
-    out = json.loads(done.stdout.strip().splitlines()[-1])
+    out = netns_script(UDP_SCRIPT)
     assert out["kind"] == "UdpPort" and out["filters_own_frames"] is True
     assert out["plain"] is True
     assert out["extended"] == [-1, 0x1ABCDE01, True, "09"]
