@@ -1,4 +1,4 @@
-"""A third test plant, written from the physics apart from ``plant_sim/kernel.py`` and from
+"""A third test plant, written from the physics apart from ``plant_sim/physics/kernel.py`` and from
 ``tests/independent_plant`` (neither imported nor copied), with modelling choices neither
 shares:
 
