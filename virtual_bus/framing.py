@@ -30,10 +30,12 @@ picks the port for a bus.
 
 from __future__ import annotations
 
+import functools
 import select
 import socket
 import struct
 import time
+from collections.abc import Callable
 
 import can
 
@@ -64,9 +66,12 @@ _ANCILLARY_SIZE = socket.CMSG_SPACE(_TIMESPEC.size)
 
 class OutFrame:
     """A frame a loop sends again and again: its payload is ``buffer[offset:offset +
-    length]``, rewritten in place (e.g. with ``Struct.pack_into``) before each send."""
+    length]``, rewritten in place (e.g. with ``Struct.pack_into``) before each send.
+    :attr:`send` sends it as it stands (the same as ``port.send(frame)``, without a Python
+    call: the port's socket or bus method bound to the frame's bytes; raises like
+    :meth:`FramePort.send`)."""
 
-    __slots__ = ("buffer", "cob_id", "length", "message", "offset", "wire")
+    __slots__ = ("buffer", "cob_id", "length", "message", "offset", "send", "wire")
 
     def __init__(
         self,
@@ -74,6 +79,7 @@ class OutFrame:
         length: int,
         buffer: bytearray,
         offset: int,
+        send: Callable[[], object],
         wire: bytearray | None = None,
         message: can.Message | None = None,
     ) -> None:
@@ -81,6 +87,7 @@ class OutFrame:
         self.length = length
         self.buffer = buffer
         self.offset = offset
+        self.send = send
         self.wire = wire  # what the socket sends (raw ports)
         self.message = message  # what the bus sends (MessagePort)
 
@@ -152,7 +159,9 @@ class MessagePort(FramePort):
 
     def frame(self, cob_id: int, length: int) -> OutFrame:
         msg = ReusedMessage(arbitration_id=cob_id, data=bytearray(length), is_extended_id=False)
-        return OutFrame(cob_id, length, msg.data, 0, message=msg)
+        return OutFrame(
+            cob_id, length, msg.data, 0, functools.partial(self.bus.send, msg), message=msg
+        )
 
     def send(self, frame: OutFrame) -> None:
         self.bus.send(frame.message)
@@ -281,7 +290,8 @@ class SocketCanPort(_SocketPort):
             raise ValueError(f"frame 0x{cob_id:X} with {length} bytes: not a classic 11-bit one")
         wire = bytearray(CAN_MTU)
         _CAN_HEAD.pack_into(wire, 0, cob_id, length, 0, 0)
-        return OutFrame(cob_id, length, wire, 8, wire=wire)
+        send = functools.partial(self.sock.send, wire, socket.MSG_DONTWAIT)
+        return OutFrame(cob_id, length, wire, 8, send, wire=wire)
 
     def send(self, frame: OutFrame) -> None:
         self.sock.send(frame.wire, socket.MSG_DONTWAIT)  # type: ignore[arg-type]
@@ -316,8 +326,17 @@ class UdpPort(_SocketPort):
         self._known_count = 0
 
     def receive(self, timeout_s: float | None) -> int:
-        if not self._read(timeout_s):
-            return NOTHING
+        # _read without the call where it is a poll (the common waits: a millisecond or
+        # more, none, forever; a frame costs a Python call less)
+        if self.stamped or (timeout_s is not None and 0.0 < timeout_s < 0.001):
+            if not self._read(timeout_s):
+                return NOTHING
+        else:
+            if not self._ready(
+                None if timeout_s is None else 0 if timeout_s <= 0.0 else int(timeout_s * 1000.0)
+            ):
+                return NOTHING
+            self.size = self._recv_into(self.buffer)
         buffer = self.buffer
         while True:
             size = self.size
@@ -362,7 +381,9 @@ class UdpPort(_SocketPort):
 
     def frame(self, cob_id: int, length: int) -> OutFrame:
         wire, offset = self._udp.template(cob_id, length)
-        return OutFrame(cob_id, length, wire, offset, wire=wire)
+        return OutFrame(
+            cob_id, length, wire, offset, functools.partial(self._send, wire), wire=wire
+        )
 
     def send(self, frame: OutFrame) -> None:
         self._send(frame.wire)
