@@ -512,10 +512,15 @@ class Bridge:
         poll = self._poll
         take = self._take
         if due is None:
+            receive = self.frames.receive
             while True:
                 while service:
                     self._serve_one()
-                cob_id = poll(0.0)
+                try:  # _poll(0.0) without the call
+                    cob_id = receive(0.0)
+                except (can.CanError, OSError) as exc:
+                    self._receive_failed(exc)
+                    break
                 if cob_id == NOTHING:
                     break
                 take(cob_id)
@@ -635,8 +640,9 @@ class Bridge:
             self._sync_wall = sync_wall
             cpu_sync = self._cpu()
         frames = self.frames
+        send = self._sync_frame.send  # from a local: see UdpPort.receive
         try:
-            self._sync_frame.send()
+            send()
         except (can.CanError, OSError) as exc:
             self._send_failed(self._sync_frame, exc)
         if self.peer_poll is not None:
@@ -706,8 +712,9 @@ class Bridge:
             timing.errors += 1
             log.exception("controller step failed")
             self.controller.stop(StopReason.INTERNAL_ERROR, f"controller step failed: {exc!r}")
+        send = self._rpdo_frame.send
         try:
-            self._rpdo_frame.send()
+            send()
         except (can.CanError, OSError) as exc:
             self._send_failed(self._rpdo_frame, exc)
         if keep:
