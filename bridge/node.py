@@ -669,7 +669,7 @@ class Bridge:
                 if late_reads < 0:
                     break
             try:
-                cob_id = receive(remaining if remaining > 0.0 and not busy_poll else 0.0)
+                cob_id = receive(remaining if remaining > 0.0 and not busy_poll else 0.0, True)
             except (can.CanError, OSError) as exc:
                 self._receive_failed(exc)
                 cob_id = NOTHING
