@@ -515,6 +515,12 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
     )
 
 
+def _realtime_settings(rate_hz: int, seconds: float) -> tuple[str, ...]:
+    """What the real-time bench and its host floor (cyclictest) run with alike: the rate, the
+    length, SCHED_FIFO priority 50 on CPU 1."""
+    return tuple(f"--seconds {seconds:g} --rate-hz {rate_hz} --rt-priority 50 --cpu 1".split())
+
+
 def _realtime_bench(rate_hz: int, seconds: float) -> Bench:
     """The bridge alone at ``rate_hz`` with every real-time option, busy polling included
     (root: the simulated drive runs as its own process in a private network namespace, with
@@ -526,14 +532,7 @@ def _realtime_bench(rate_hz: int, seconds: float) -> Bench:
             "hil",
             "bench",
             "--skip-lockstep",
-            "--seconds",
-            f"{seconds:g}",
-            "--rate-hz",
-            str(rate_hz),
-            "--rt-priority",
-            "50",
-            "--cpu",
-            "1",
+            *_realtime_settings(rate_hz, seconds),
             "--lock-memory",
             "--freeze-gc",
             "--busy-poll",
@@ -586,14 +585,7 @@ def _host_latency_bench(rate_hz: int, seconds: float) -> Bench:
         (
             "bridge",
             "host-latency",
-            "--rate-hz",
-            str(rate_hz),
-            "--seconds",
-            f"{seconds:g}",
-            "--cpu",
-            "1",
-            "--rt-priority",
-            "50",
+            *_realtime_settings(rate_hz, seconds),
             "--json",
             "{out}/host.json",
         ),

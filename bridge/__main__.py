@@ -1,4 +1,5 @@
-"""``python -m bridge COMMAND``: run, probe, config, eds, busload, host-latency.
+"""``python -m bridge COMMAND``: run, probe, config, eds, busload, host-latency,
+freqresp, tune.
 
 Each command is a module under :mod:`bridge.commands` (``NAME``, ``HELP``,
 ``add_arguments``, ``run``), run by :mod:`virtual_bus.cli`. Bad arguments or files end with a

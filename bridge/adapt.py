@@ -20,7 +20,14 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import TypeVar
 
-from virtual_bus.contract import DataType, rpdo_cob_id, tpdo_cob_id
+from virtual_bus.contract import (
+    TPDO_COMM_BASE,
+    DataType,
+    pdo_comm_index,
+    pdo_mapping_index,
+    rpdo_cob_id,
+    tpdo_cob_id,
+)
 
 from .errors import DriveSetupError
 from .layout import CycleLayout, MappedObject, RxFrame, Signal, struct_code
@@ -135,11 +142,11 @@ class PdoPlan:
 
     @property
     def comm_index(self) -> int:
-        return (0x1800 if self.transmit else 0x1400) + self.number - 1
+        return pdo_comm_index(self.transmit, self.number)
 
     @property
     def mapping_index(self) -> int:
-        return (0x1A00 if self.transmit else 0x1600) + self.number - 1
+        return pdo_mapping_index(self.transmit, self.number)
 
     @property
     def name(self) -> str:
@@ -303,7 +310,7 @@ def _usable_pdos(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> lis
         raise _fail(
             f"drive {drive_id}: none of the TPDOs {list(profile.tpdos)} exists (1800h+n-1); "
             "set pdo.tpdos in the drive profile",
-            (0x1800, 1),
+            (TPDO_COMM_BASE, 1),
         )
     return usable
 
@@ -472,8 +479,8 @@ def _rpdo(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> PdoPlan:
     if profile.rpdo not in rpdo_numbers:
         raise _fail(
             f"drive {drive_id}: RPDO{profile.rpdo} does not exist "
-            f"({0x1400 + profile.rpdo - 1:04X}h); set pdo.rpdo in the drive profile",
-            (0x1400 + profile.rpdo - 1, 1),
+            f"({pdo_comm_index(False, profile.rpdo):04X}h); set pdo.rpdo in the drive profile",
+            (pdo_comm_index(False, profile.rpdo), 1),
         )
     rpdo_cob = profile.rpdo_cob_id or rpdo_cob_id(profile.rpdo, drive_id)
     return PdoPlan(

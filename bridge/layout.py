@@ -17,10 +17,9 @@ from virtual_bus.contract import (
     emcy_cob_id,
     heartbeat_cob_id,
     mapping_entry,
+    pdo_cob_id,
     pdo_struct,
-    rpdo_cob_id,
     sdo_tx_cob_id,
-    tpdo_cob_id,
     type_size,
 )
 
@@ -78,17 +77,7 @@ class PdoSpec:
         return self.struct.format
 
     def cob_id(self, drive_id: int) -> int:
-        return (tpdo_cob_id if self.transmit else rpdo_cob_id)(self.number, drive_id)
-
-    @property
-    def comm_index(self) -> int:
-        """1800h+n-1 (TPDO) or 1400h+n-1 (RPDO) communication parameter of the drive."""
-        return (0x1800 if self.transmit else 0x1400) + self.number - 1
-
-    @property
-    def mapping_index(self) -> int:
-        """1A00h+n-1 (TPDO) or 1600h+n-1 (RPDO) mapping parameter of the drive."""
-        return (0x1A00 if self.transmit else 0x1600) + self.number - 1
+        return pdo_cob_id(self.transmit, self.number, drive_id)
 
 
 #: TPDO1: 6064h position actual value (I32) + 60E4h:01 load scale (I32), every SYNC.

@@ -37,7 +37,14 @@ import canopen
 from canopen.nmt import NmtError
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from virtual_bus.contract import COB_ID_INVALID, NmtCommand, pdo_cob_id, tpdo_cob_id
+from virtual_bus.contract import (
+    COB_ID_INVALID,
+    NmtCommand,
+    pdo_cob_id,
+    pdo_comm_index,
+    pdo_mapping_index,
+    tpdo_cob_id,
+)
 from virtual_bus.formats.axis import AxisKind
 
 from .adapt import (
@@ -214,8 +221,7 @@ class DriveMaster:
     def _pdo_facts(self, transmit: bool) -> tuple[PdoFacts, ...]:
         found = []
         for n in range(1, 5):
-            comm = (0x1800 if transmit else 0x1400) + n - 1
-            mapping = (0x1A00 if transmit else 0x1600) + n - 1
+            comm, mapping = pdo_comm_index(transmit, n), pdo_mapping_index(transmit, n)
             cob = self._u32(comm, 1)
             if cob is None:
                 continue
@@ -309,7 +315,7 @@ class DriveMaster:
 
     def disable_pdo(self, transmit: bool, number: int) -> None:
         """Mark a PDO outside the layout invalid; a drive without it is fine."""
-        index = (0x1800 if transmit else 0x1400) + number - 1
+        index = pdo_comm_index(transmit, number)
         cob = pdo_cob_id(transmit, number, self.drive.id)
         current = self._u32(index, 1)
         if current is None:

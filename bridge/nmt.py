@@ -27,17 +27,17 @@ from collections.abc import Callable
 
 import canopen
 
-from virtual_bus.contract import HEARTBEAT_BASE, NmtCommand, NmtState
+from virtual_bus.contract import (
+    HEARTBEAT_BASE,
+    NMT_TARGET_STATE,
+    NmtCommand,
+    NmtState,
+    nmt_command_for,
+)
 
 from .od import HEARTBEAT_PRODUCER
 
 log = logging.getLogger("bridge")
-
-_TARGET = {
-    NmtCommand.START: NmtState.OPERATIONAL,
-    NmtCommand.STOP: NmtState.STOPPED,
-    NmtCommand.ENTER_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
-}
 
 
 class BridgeNmt:
@@ -70,18 +70,13 @@ class BridgeNmt:
 
     # --- NMT commands (COB-ID 0, subscribed in place of NmtSlave.on_command) ----------------
     def on_command(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if len(data) != 2:
-            return  # the frame guard admits only 2-byte NMT frames
-        specifier, node_id = data[0], data[1]
-        if node_id not in (0, self.id):
-            return
         try:
-            command = NmtCommand(specifier)
-        except ValueError:
-            allowed = ", ".join(f"0x{c:02X}" for c in NmtCommand)
-            log.warning("NMT command 0x%02X ignored; allowed %s", specifier, allowed)
+            command = nmt_command_for(data, self.id)  # the frame guard admits 2 bytes only
+        except ValueError as exc:
+            log.warning("%s", exc)
             return
-        self.execute(command)
+        if command is not None:
+            self.execute(command)
 
     def execute(self, command: NmtCommand) -> None:
         if command in (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION):
@@ -90,7 +85,7 @@ class BridgeNmt:
             self._due_s = None  # the heartbeat starts anew with the next tick
             self._set(NmtState.PRE_OPERATIONAL)
         else:
-            self._set(_TARGET[command])
+            self._set(NMT_TARGET_STATE[command])
 
     def _set(self, new: NmtState) -> None:
         if new is self.state:

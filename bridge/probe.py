@@ -28,7 +28,7 @@ import canopen
 from canopen.objectdictionary import ODVariable
 
 from virtual_bus import BusConfig, cli, open_bus
-from virtual_bus.contract import NmtCommand
+from virtual_bus.contract import TPDO_MAPPING_BASE, NmtCommand, pdo_comm_index, pdo_mapping_index
 from virtual_bus.formats.axis import AxisKind
 
 from . import candidates as cand
@@ -284,9 +284,7 @@ def _node_range(text: str) -> tuple[int, ...]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
-    parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
-    parser.add_argument("--bitrate", type=int, default=1_000_000, help="bit/s (default 1000000)")
+    cli.add_can_bus(parser)
     parser.add_argument("--drive-id", type=cli.node_id, required=True, help="the drive's node-ID")
     parser.add_argument(
         "--eds",
@@ -353,8 +351,7 @@ def static_mapping(
     pdos = [(True, n) for n in profile.tpdos] + [(False, profile.rpdo)]
     usable_tpdo = False
     for transmit, number in pdos:
-        comm = (0x1800 if transmit else 0x1400) + number - 1
-        mapping = (0x1A00 if transmit else 0x1600) + number - 1
+        comm, mapping = pdo_comm_index(transmit, number), pdo_mapping_index(transmit, number)
         fixed = []
         for index, sub in ((comm, 1), (mapping, 0), (mapping, 1)):
             obj = od.get(index)
@@ -383,7 +380,7 @@ def static_mapping(
                 f"drive {drive_id}: none of the TPDOs {list(profile.tpdos)} can be configured "
                 "(the EDS marks their COB-ID or mapping read-only: a static mapping); the "
                 "bridge needs TPDOs it can map",
-                index=0x1A00,
+                index=TPDO_MAPPING_BASE,
                 subindex=0,
             )
         )

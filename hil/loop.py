@@ -13,11 +13,12 @@ point computed at SYNC k takes effect at SYNC k+1 (the PDO delay). The plant is 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import replace
 from typing import Protocol
 
 import numpy as np
 
+from bridge.commission.session import Recording
 from regulator import BacklashRegulator, PositionController, RegulatorConfig
 from regulator.tuning import Record, SafetyLimits, safety_stop
 
@@ -38,30 +39,6 @@ class Plant(Protocol):
     def motor_torque_nm(self) -> float: ...
 
 
-@dataclass(frozen=True)
-class LoopTrace:
-    """One value per cycle: reference, load position, the set point sent (rad/s), motor
-    speed, torque, beta, lambda."""
-
-    position_reference: np.ndarray
-    load_position: np.ndarray
-    omega_r: np.ndarray
-    motor_speed: np.ndarray
-    torque: np.ndarray
-    beta: np.ndarray
-    switching_factor: np.ndarray
-
-    def record(self, stopped: str | None = None) -> Record:
-        return Record(
-            self.position_reference,
-            self.load_position,
-            self.beta,
-            self.switching_factor,
-            stopped,
-            self.torque,
-        )
-
-
 def run_loop(
     plant: Plant,
     position: np.ndarray,
@@ -70,7 +47,7 @@ def run_loop(
     regulator: RegulatorConfig,
     velocity_feedforward: float = 0.0,
     disturbance_nm: np.ndarray | None = None,
-) -> LoopTrace:
+) -> Recording:
     """Play the reference (load units, load units/s per cycle) on ``plant`` (module doc)."""
     n = position.size
     controller = PositionController(regulator.kv, kr)
@@ -94,7 +71,7 @@ def run_loop(
         )
         plant.advance(latched, float(dist[k]))
         latched = omega_r
-    return LoopTrace(*out)
+    return Recording(*out, cycles=n)
 
 
 def trial_runner(
@@ -130,13 +107,6 @@ def trial_runner(
             disturbance_nm,
         )
         record = trace.record()
-        return Record(
-            record.position_reference,
-            record.load_position,
-            record.beta,
-            record.switching_factor,
-            safety_stop(record, safety),
-            record.torque,
-        )
+        return replace(record, stopped=safety_stop(record, safety))
 
     return run

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
 from bridge.commission.freqresp import ExcitationPlan, FrequencyResponse
-from bridge.commission.session import Recording
 from plant_sim.physics.model import AxisPlant, KernelOptions
 from plant_sim.physics.simulate import References, simulate
 from regulator import RegulatorConfig
@@ -71,19 +71,7 @@ def kernel_runner(
             None,
             tr["motor_torque"],
         )
-        stop = safety_stop(record, safety)
-        return (
-            Record(*record.__dict__.values())
-            if stop is None
-            else Record(
-                record.position_reference,
-                record.load_position,
-                record.beta,
-                record.switching_factor,
-                stop,
-                record.torque,
-            )
-        )
+        return replace(record, stopped=safety_stop(record, safety))
 
     return run
 
@@ -101,16 +89,6 @@ def frequency_response(
             f"torque {np.max(np.abs(trace.torque)):.4g} N m beyond the test's limit "
             f"{plan.torque_limit:g}: lower the amplitude (the drive would have been stopped)"
         )
-    rec = Recording(
-        trace.position_reference,
-        trace.load_position,
-        trace.omega_r,
-        trace.motor_speed,
-        trace.torque,
-        trace.beta,
-        trace.switching_factor,
-        trace.load_position.size,
-    )
     loop = plan.estimate(trace.omega_r, trace.motor_speed)
     adm = plan.estimate(trace.torque, trace.motor_speed)
     band = plan.notch_band_hz or (
@@ -122,7 +100,7 @@ def frequency_response(
         adm,
         antiresonance(loop, band[0], band[1], adm),
         bandwidth(loop),
-        rec,
+        trace,
         torque_unit,
         plan,
     )

@@ -41,6 +41,7 @@ from scipy.optimize import minimize
 from virtual_bus.formats.axis import AxisConfig, load_axis
 from virtual_bus.formats.errors import AxisFileError
 from virtual_bus.formats.trace import Trace
+from virtual_bus.shipped import PAPER_AXIS
 
 from .datasets.force_error import SETTLE_S, passive_regulator, replay
 from .errors import ScenarioError
@@ -75,7 +76,6 @@ BENCH_START_FACTORS = {
     "friction.coulomb": 0.75,
     "friction.viscous": 0.75,
 }
-PAPER_AXIS = Path(__file__).resolve().parents[1] / "config" / "paper_axis.toml"
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -94,18 +95,26 @@ def run_loop(c: CycleController, drive: PayloadDrive, refs: References) -> dict[
     return out
 
 
-def paper_bridge(bus: can.BusABC, config: BridgeConfig | None = None) -> Bridge:
-    """The bridge of the paper's axis (its defaults) on ``bus``, paced in lockstep at 1 ms."""
+def paper_bridge(
+    bus: can.BusABC,
+    config: BridgeConfig | None = None,
+    wall: Callable[[], float] = time.monotonic,
+) -> Bridge:
+    """The bridge of the paper's axis (its defaults) on ``bus``, paced in lockstep at 1 ms;
+    ``wall``: the clock of its service thread (heartbeats between runs)."""
     params = BridgeParams.for_axis(AXIS)
-    return Bridge(bus, params, AXIS.kind, LockstepPacer(0.001), config=config or BridgeConfig())
+    config = config or BridgeConfig()
+    return Bridge(bus, params, AXIS.kind, LockstepPacer(0.001), config=config, wall=wall)
 
 
 @contextlib.contextmanager
-def idle_bridge(bus: can.BusABC, store: Path | None = None) -> Iterator[Bridge]:
+def idle_bridge(
+    bus: can.BusABC, store: Path | None = None, wall: Callable[[], float] = time.monotonic
+) -> Iterator[Bridge]:
     """:func:`paper_bridge` started without a drive (no drive answers on ``bus``), disabled,
     serving SDO, with its parameter store at ``store``; closed at the end (a "restart" is a
     second block on the same bus and store file)."""
-    bridge = paper_bridge(bus, BridgeConfig(store_path=store))
+    bridge = paper_bridge(bus, BridgeConfig(store_path=store), wall)
     try:
         bridge.start(configure_drive=False)
         bridge.controller.command(Command.DISABLE)
@@ -116,15 +125,15 @@ def idle_bridge(bus: can.BusABC, store: Path | None = None) -> Iterator[Bridge]:
 
 
 @contextlib.contextmanager
-def sdo_tool(bus: can.BusABC) -> Iterator[canopen.RemoteNode]:
+def sdo_tool(bus: can.BusABC, timeout_s: float = 2.0) -> Iterator[canopen.RemoteNode]:
     """A CANopen tool on ``bus``: python-canopen's RemoteNode of the bridge with its EDS,
-    fed by a python-can Notifier."""
+    fed by a python-can Notifier; ``timeout_s``: its SDO response timeout."""
     network = canopen.Network(bus)
     notifier = can.Notifier(bus, network.listeners, 0.02)
     network.notifier = notifier
     node = canopen.RemoteNode(objdict.DEFAULT_NODE_ID, objdict.load_od())
     network.add_node(node)
-    node.sdo.RESPONSE_TIMEOUT = 2.0
+    node.sdo.RESPONSE_TIMEOUT = timeout_s
     try:
         yield node
     finally:

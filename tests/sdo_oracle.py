@@ -6,12 +6,14 @@ sizes come from CiA 301 table 44 written out here, and the order of the checks i
 CiA 301 7.2.4 / CANopenNode: object, sub-index, access, length, value against the EDS limits
 (REAL32 too, NaN outside every range), then the application. :func:`expected` returns the
 abort code a write must get, or :data:`APPLICATION` when only the device's own rules decide
-(success or a value/state code).
+(success or a value/state code); ``tests/peers/eds_predict.py`` decides those from the rules
+the EDS Descriptions state.
 """
 
 from __future__ import annotations
 
 import configparser
+import math
 import re
 import struct
 from dataclasses import dataclass
@@ -26,10 +28,12 @@ LENGTH_TOO_LOW = 0x0607_0013
 VALUE_RANGE = 0x0609_0030
 TOO_HIGH = 0x0609_0031
 TOO_LOW = 0x0609_0032
+NOT_MAPPABLE = 0x0604_0041
+PDO_LENGTH = 0x0604_0042
 DEVICE_STATE = 0x0800_0022
 #: Codes the device's own rules may answer a well-formed write in range with.
 APPLICATION_CODES = frozenset(
-    {VALUE_RANGE, TOO_HIGH, TOO_LOW, DEVICE_STATE, 0x0604_0041, 0x0604_0042, 0x0602_0000}
+    {VALUE_RANGE, TOO_HIGH, TOO_LOW, DEVICE_STATE, NOT_MAPPABLE, PDO_LENGTH, NO_OBJECT}
     # 1010h/1011h: a wrong signature, or no store (CiA 301: "data cannot be transferred or
     # stored"), and a store file that cannot be written ("hardware error")
     | {0x0800_0020, 0x0606_0000}
@@ -37,19 +41,25 @@ APPLICATION_CODES = frozenset(
 #: Marker: success or one of APPLICATION_CODES.
 APPLICATION = -1
 
-# CiA 301 table 44: size in bytes, struct code, signed
-_TYPES = {
-    0x0001: (1, "B"),  # BOOLEAN
-    0x0002: (1, "b"),  # INTEGER8
-    0x0003: (2, "h"),  # INTEGER16
-    0x0004: (4, "i"),  # INTEGER32
-    0x0005: (1, "B"),  # UNSIGNED8
-    0x0006: (2, "H"),  # UNSIGNED16
-    0x0007: (4, "I"),  # UNSIGNED32
-    0x0008: (4, "f"),  # REAL32
+# CiA 301 table 44: data type -> (bytes, struct format; lower case: signed)
+TYPES: dict[int, tuple[int, str]] = {
+    0x01: (1, "B"),  # BOOLEAN
+    0x02: (1, "b"),  # INTEGER8
+    0x03: (2, "h"),  # INTEGER16
+    0x04: (4, "i"),  # INTEGER32
+    0x05: (1, "B"),  # UNSIGNED8
+    0x06: (2, "H"),  # UNSIGNED16
+    0x07: (4, "I"),  # UNSIGNED32
+    0x08: (4, "f"),  # REAL32
+    0x11: (8, "d"),  # REAL64
+    0x15: (8, "q"),  # INTEGER64
+    0x1B: (8, "Q"),  # UNSIGNED64
 }
-VISIBLE_STRING = 0x0009
-REAL32 = 0x0008
+BOOLEAN, REAL32, VISIBLE_STRING, REAL64 = 0x01, 0x08, 0x09, 0x11
+WRITABLE = frozenset({"rw", "wo", "rww", "rwr"})
+READABLE = frozenset({"ro", "rw", "const", "rww", "rwr"})
+
+_SECTION = re.compile(r"([0-9A-Fa-f]{4})(?:sub([0-9A-Fa-f]{1,2}))?")
 
 
 @dataclass(frozen=True)
@@ -57,31 +67,38 @@ class Declared:
     """One sub-object as the EDS declares it."""
 
     index: int
-    subindex: int
+    sub: int
     data_type: int
     access: str
     low: int | float | None
     high: int | float | None
-    default: str
+    pdo_mapping: bool
+    description: str
 
     @property
     def size(self) -> int | None:
-        entry = _TYPES.get(self.data_type)
+        entry = TYPES.get(self.data_type)
         return None if entry is None else entry[0]
 
-    def pack(self, value: int | float) -> bytes:
-        return struct.pack("<" + _TYPES[self.data_type][1], value)
+    def decode(self, data: bytes) -> int | float:
+        return struct.unpack("<" + TYPES[self.data_type][1], data)[0]
 
-    def unpack(self, data: bytes) -> int | float:
-        return struct.unpack("<" + _TYPES[self.data_type][1], data)[0]
+    def encode(self, value: int | float) -> bytes:
+        return struct.pack("<" + TYPES[self.data_type][1], value)
 
 
-def _int(text: str, node_id: int) -> int:
-    text = text.strip().upper().replace("$NODEID", str(node_id))
+def _number(text: str, data_type: int, node_id: int) -> int | float:
+    text = text.strip()
+    if data_type in (REAL32, REAL64):
+        return float(text)
     total = 0
-    for term in text.split("+"):
+    for term in text.upper().replace("$NODEID", str(node_id)).split("+"):
         term = term.strip()
         total += int(term, 16) if term.startswith("0X") else int(term)
+    size = TYPES[data_type][0] * 8
+    signed = TYPES[data_type][1].islower() and data_type != BOOLEAN
+    if signed and total >= 1 << (size - 1):  # a signed limit written as hex
+        total -= 1 << size
     return total
 
 
@@ -89,28 +106,27 @@ def read_eds(path: Path, node_id: int) -> dict[tuple[int, int], Declared]:
     """Every VAR and sub-object of an EDS, keyed (index, sub-index)."""
     parser = configparser.ConfigParser(strict=False, interpolation=None)
     parser.optionxform = str  # type: ignore[assignment,method-assign]
-    parser.read(path, encoding="ascii")
+    parser.read(path, encoding="utf-8")
     out: dict[tuple[int, int], Declared] = {}
     for section in parser.sections():
-        m = re.fullmatch(r"([0-9A-Fa-f]{4})(?:sub([0-9A-Fa-f]{1,2}))?", section)
+        m = _SECTION.fullmatch(section)
         if not m:
             continue
         s = parser[section]
         if int(s.get("ObjectType", "0x7"), 0) != 7:
             continue
         index, sub = int(m.group(1), 16), int(m.group(2) or "0", 16)
-        low = s.get("LowLimit")
-        high = s.get("HighLimit")
         data_type = int(s["DataType"], 0)
-        number = float if data_type == REAL32 else lambda text: _int(text, node_id)
+        low, high = s.get("LowLimit", ""), s.get("HighLimit", "")
         out[(index, sub)] = Declared(
             index,
             sub,
             data_type,
             s["AccessType"].strip().lower(),
-            None if low in (None, "") else number(low),
-            None if high in (None, "") else number(high),
-            s.get("DefaultValue", ""),
+            _number(low, data_type, node_id) if low.strip() else None,
+            _number(high, data_type, node_id) if high.strip() else None,
+            s.get("PDOMapping", "0").strip() not in ("", "0"),
+            s.get("Description", ""),
         )
     return out
 
@@ -122,20 +138,22 @@ def expected(od: dict[tuple[int, int], Declared], index: int, sub: int, data: by
     obj = od.get((index, sub))
     if obj is None:
         return NO_SUBINDEX
-    if obj.access not in ("rw", "wo", "rww", "rwr"):
+    if obj.access not in WRITABLE:
         return READ_ONLY
     size = obj.size
-    if size is not None:
-        if len(data) > size:
-            return LENGTH_TOO_HIGH
-        if len(data) < size:
-            return LENGTH_TOO_LOW
-        if obj.data_type == 0x0001:
-            return APPLICATION if data[0] in (0, 1) else VALUE_RANGE
-        value = obj.unpack(data)
-        limited = obj.low is not None or obj.high is not None
-        if obj.data_type == REAL32 and value != value and limited:
+    if size is None:  # strings, domains: any length
+        return APPLICATION
+    if len(data) > size:
+        return LENGTH_TOO_HIGH
+    if len(data) < size:
+        return LENGTH_TOO_LOW
+    value = obj.decode(data)
+    if obj.data_type == BOOLEAN and value not in (0, 1):
+        return VALUE_RANGE
+    if isinstance(value, float) and math.isnan(value):
+        if obj.low is not None or obj.high is not None:
             return VALUE_RANGE  # NaN is in no range
+    else:
         if obj.low is not None and value < obj.low:
             return TOO_LOW
         if obj.high is not None and value > obj.high:

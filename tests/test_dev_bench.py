@@ -6,19 +6,12 @@ worked out by hand.
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
-import sys
 
 import pytest
 
+from tests.dev_module import dev
 from tests.paths import ROOT
-
-spec = importlib.util.spec_from_file_location("dev", ROOT / "dev.py")
-assert spec is not None and spec.loader is not None
-dev = importlib.util.module_from_spec(spec)
-sys.modules.setdefault("dev", dev)  # dataclasses look their module up there
-spec.loader.exec_module(dev)
 
 
 def test_replaces_only_the_block_between_the_markers() -> None:

@@ -3,19 +3,14 @@ summary is read from pytest's own JUnit XML, and one exit status stands for both
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("dev", ROOT / "dev.py")
-assert spec is not None and spec.loader is not None
-dev = importlib.util.module_from_spec(spec)
-sys.modules.setdefault("dev", dev)  # dataclasses look their module up there
-spec.loader.exec_module(dev)
+from tests.dev_module import dev
+from tests.paths import ROOT
 
 
 def test_counts_are_read_from_pytests_junit_xml(tmp_path: Path) -> None:

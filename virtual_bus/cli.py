@@ -1,8 +1,10 @@
 """The one command-line framework of ``python -m plant_sim``, ``bridge`` and ``virtual_bus``.
 
 A command is a module with ``NAME``, ``HELP``, ``add_arguments(parser)`` and
-``run(args) -> int`` (the convention of ``plant_sim/commands/*.py``). :func:`main` builds the
-parser from a package's command modules and runs the chosen one. What every command gets:
+``run(args) -> int`` (the convention of ``plant_sim/commands/*.py``), and optionally
+``DESCRIPTION`` (the paragraph of ``COMMAND --help``; ``HELP`` where there is none).
+:func:`main` builds the parser from a package's command modules and runs the chosen one.
+What every command gets:
 
 * one way to fail on bad input: a single line ``PROG COMMAND: error: MESSAGE`` on stderr and
   exit status 2, whether argparse rejects an argument (:class:`Parser`), a command raises
@@ -137,7 +139,8 @@ def build_parser(prog: str, description: str, commands: Sequence[ModuleType]) ->
         dest="command", required=True, metavar="COMMAND", parser_class=Parser
     )
     for module in commands:
-        p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
+        description = getattr(module, "DESCRIPTION", module.HELP)
+        p = sub.add_parser(module.NAME, help=module.HELP, description=description)
         module.add_arguments(p)
         if not any(a.dest == "quiet" for a in p._actions):
             add_quiet(p)
@@ -342,6 +345,18 @@ def new_file(text: str) -> Path:
     if not path.parent.exists():
         raise argparse.ArgumentTypeError(f"{text}: directory {path.parent} does not exist")
     return path
+
+
+def add_can_bus(
+    parser: argparse.ArgumentParser, bitrate: int = 1_000_000, bitrate_help: str | None = None
+) -> None:
+    """``--interface``, ``--channel`` (both required) and ``--bitrate``: the one CAN bus a
+    command opens (the fields of :class:`virtual_bus.BusConfig`)."""
+    parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
+    parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
+    parser.add_argument(
+        "--bitrate", type=int, default=bitrate, help=bitrate_help or f"bit/s (default {bitrate})"
+    )
 
 
 def add_quiet(parser: argparse.ArgumentParser) -> None:

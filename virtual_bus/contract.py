@@ -90,6 +90,25 @@ def pdo_of_cob_id(cob_id: int) -> tuple[bool, int, int] | None:
     return None
 
 
+# --- PDO parameter objects (CiA 301 7.5.2.35-38): PDO n has n-1 added to its base ----------
+RPDO_COMM_BASE = 0x1400
+RPDO_MAPPING_BASE = 0x1600
+TPDO_COMM_BASE = 0x1800
+TPDO_MAPPING_BASE = 0x1A00
+#: The last index of the four PDO parameter areas (512 TPDO mappings end at 1BFFh).
+PDO_PARAMETERS_END = 0x1BFF
+
+
+def pdo_comm_index(transmit: bool, number: int) -> int:
+    """1800h+n-1 (TPDO) or 1400h+n-1 (RPDO): communication parameter of PDO ``number``."""
+    return (TPDO_COMM_BASE if transmit else RPDO_COMM_BASE) + number - 1
+
+
+def pdo_mapping_index(transmit: bool, number: int) -> int:
+    """1A00h+n-1 (TPDO) or 1600h+n-1 (RPDO): mapping parameter of PDO ``number``."""
+    return (TPDO_MAPPING_BASE if transmit else RPDO_MAPPING_BASE) + number - 1
+
+
 def emcy_cob_id(node_id: int) -> int:
     return EMCY_BASE + _node(node_id)
 
@@ -126,6 +145,31 @@ class NmtCommand(IntEnum):
     ENTER_PRE_OPERATIONAL = 0x80
     RESET_NODE = 0x81
     RESET_COMMUNICATION = 0x82
+
+
+#: The state each command that is no reset leads to (CiA 301 figure 48); the reset commands
+#: pass through Initialising (the boot-up message) to Pre-operational.
+NMT_TARGET_STATE = {
+    NmtCommand.START: NmtState.OPERATIONAL,
+    NmtCommand.STOP: NmtState.STOPPED,
+    NmtCommand.ENTER_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
+}
+
+
+def nmt_command_for(data: bytes | bytearray, node_id: int) -> NmtCommand | None:
+    """The command of an NMT frame's data (command specifier, node-ID; 0 addresses every
+    node) when it addresses ``node_id``, None when it addresses another node. ValueError
+    naming what is wrong for a frame of another length or an unknown specifier."""
+    if len(data) != NMT_LENGTH:
+        raise ValueError(f"NMT frame with {len(data)} data bytes ignored (needs {NMT_LENGTH})")
+    specifier, target = data[0], data[1]
+    if target not in (0, node_id):
+        return None
+    try:
+        return NmtCommand(specifier)
+    except ValueError:
+        allowed = ", ".join(f"0x{c:02X}" for c in NmtCommand)
+        raise ValueError(f"NMT command 0x{specifier:02X} ignored; allowed {allowed}") from None
 
 
 # --- CiA 402 controlword / statusword bits -----------------------------------------------------

@@ -11,10 +11,10 @@ from virtual_bus.shipped import PAPER_AXIS
 
 NAME = "busload"
 HELP = "bus load of the PDO layout (SYNC + TPDO1 + TPDO2 + RPDO1 per axis)"
+DESCRIPTION = "Worst-case bit stuffing, 11-bit identifiers."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = "Worst-case bit stuffing, 11-bit identifiers."
     parser.add_argument("--bitrate", type=int, default=1_000_000, help="bit/s (default 1000000)")
     parser.add_argument(
         "--cycle-us", type=cli.positive_float, help="SYNC period in µs (default: axis)"

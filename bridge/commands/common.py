@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from regulator import RegulatorConfig
@@ -9,7 +10,19 @@ from regulator.errors import RegulatorError
 from virtual_bus import cli
 from virtual_bus.formats.axis import AxisConfig, load_axis
 
+from ..timing import TimeMode
+
 PROG = "python -m bridge"
+
+
+def add_clock_argument(parser: argparse.ArgumentParser) -> None:
+    """``--clock``: the loop's time mode (:class:`bridge.timing.TimeMode`)."""
+    parser.add_argument(
+        "--clock",
+        choices=[m.value for m in TimeMode],
+        default="realtime",
+        help="realtime (default; hardware) or lockstep (simulated drives)",
+    )
 
 
 def regulated_axis(path: Path) -> AxisConfig:

@@ -16,10 +16,10 @@ from .common import PROG
 
 NAME = "eds"
 HELP = "print the bridge's EDS (--out FILE writes it, --check compares config/bridge.eds)"
+DESCRIPTION = "Renders the bridge's EDS (CiA 306) from bridge.od.OBJECTS."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = "Renders the bridge's EDS (CiA 306) from bridge.od.OBJECTS."
     parser.add_argument(
         "--out",
         type=Path,

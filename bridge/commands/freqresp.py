@@ -33,7 +33,6 @@ DESCRIPTION = (
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from .session_args import add_bus_arguments
 
-    parser.description = DESCRIPTION
     add_bus_arguments(parser)
     add_excitation_arguments(parser)
 

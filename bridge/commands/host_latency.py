@@ -27,7 +27,6 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = DESCRIPTION
     parser.add_argument(
         "--rate-hz", type=float, choices=[1000.0, 2000.0], default=1000.0, help="(1000)"
     )

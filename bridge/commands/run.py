@@ -15,7 +15,7 @@ from ..master import DriveSetup
 from ..node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
 from ..profile import load_profile
 from ..timing import TimeMode
-from .common import default_store_path, regulated_axis
+from .common import add_clock_argument, default_store_path, regulated_axis
 
 NAME = "run"
 HELP = "run the bridge against a drive on a CAN interface (real time)"
@@ -34,15 +34,8 @@ def _move(text: str) -> Move:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = DESCRIPTION
-    parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
-    parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
-    parser.add_argument(
-        "--bitrate",
-        type=int,
-        default=1_000_000,
-        help="bit/s, a CiA 301 rate (default 1000000: one axis at 1 ms is 44 %% of it)",
-    )
+    rates = "bit/s, a CiA 301 rate (default 1000000: one axis at 1 ms is 44 %% of it)"
+    cli.add_can_bus(parser, bitrate_help=rates)
     parser.add_argument(
         "--drive-profile",
         type=Path,
@@ -90,12 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--trace", type=Path, help="trace file to write (trace-file.md)")
     parser.add_argument("--bus-log", type=Path, help="candump log of the bus traffic")
-    parser.add_argument(
-        "--clock",
-        choices=[m.value for m in TimeMode],
-        default="realtime",
-        help="realtime (default; hardware) or lockstep (simulated drives)",
-    )
+    add_clock_argument(parser)
     add_realtime_options(parser)
     parser.add_argument(
         "--overrun-limit",

@@ -19,13 +19,11 @@ from ..run import RunOptions, params_for
 from ..scaling import LOAD_INCREMENTS_PER_UNIT
 from ..store import ParameterStore
 from ..timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
-from .common import default_store_path, regulated_axis
+from .common import add_clock_argument, default_store_path, regulated_axis
 
 
 def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
-    parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
-    parser.add_argument("--bitrate", type=int, default=1_000_000, help="bit/s (1000000)")
+    cli.add_can_bus(parser)
     parser.add_argument("--drive-profile", type=cli.existing_file, help="drive profile (TOML)")
     parser.add_argument(
         "--node-id", type=cli.node_id, default=objdict.DEFAULT_NODE_ID, help="bridge (1)"
@@ -40,12 +38,7 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="parameter store of 1010h (default: AXIS.bridge-store.json beside the axis file)",
     )
-    parser.add_argument(
-        "--clock",
-        choices=[m.value for m in TimeMode],
-        default="realtime",
-        help="realtime (default; hardware) or lockstep (simulated drives)",
-    )
+    add_clock_argument(parser)
     parser.add_argument("--out", type=cli.output_dir, required=True, help="report directory")
 
 

@@ -4,9 +4,17 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
-from regulator.tuning import Outcome, SearchConfig, TrialResult, TuningError, TuningMotion
+from regulator.tuning import (
+    Outcome,
+    SearchConfig,
+    SearchResult,
+    TrialResult,
+    TuningError,
+    TuningMotion,
+)
 from virtual_bus import cli
 
 from ..commission.session import CommissioningStopped
@@ -29,7 +37,6 @@ DESCRIPTION = (
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from .session_args import add_bus_arguments
 
-    parser.description = DESCRIPTION
     add_bus_arguments(parser)
     add_tuning_arguments(parser)
 
@@ -98,13 +105,25 @@ def options_from(args: argparse.Namespace) -> TuneOptions:
         raise cli.UsageError(str(exc)) from None
 
 
-def run(args: argparse.Namespace) -> int:
+def write_report(result: SearchResult, cycle_s: float, out: Path, extra: dict) -> None:
+    """tune.json (the search and ``extra``) and trials.png in ``out``; prints the files
+    (shared with ``python -m hil tune``)."""
     from ..commission.figures import available, search_dict, trials_figure, write_json
+
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "tune.json", search_dict(result) | extra)
+    if available():
+        trials_figure(result, cycle_s, out / "trials.png", 1e6)
+        print(f"wrote {out / 'tune.json'}, {out / 'trials.png'}")
+    else:
+        print(f"wrote {out / 'tune.json'} (trials.png not drawn: matplotlib is not installed)")
+
+
+def run(args: argparse.Namespace) -> int:
     from ..commission.tune import tune
     from .session_args import started_bridge
 
     options = options_from(args)
-    out = args.out
     with started_bridge(args) as bridge:
         cycle_s = bridge.controller.params.cycle_s
         try:
@@ -113,14 +132,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"python -m bridge tune: {exc}; nothing stored", file=sys.stderr)
             return 1
     result = report.result
-    out.mkdir(parents=True, exist_ok=True)
-    data = search_dict(result) | {"stored": report.stored, "store": report.store_path}
-    write_json(out / "tune.json", data)
-    if available():
-        trials_figure(result, cycle_s, out / "trials.png", 1e6)
-        print(f"wrote {out / 'tune.json'}, {out / 'trials.png'}")
-    else:
-        print(f"wrote {out / 'tune.json'} (trials.png not drawn: matplotlib is not installed)")
+    write_report(result, cycle_s, args.out, {"stored": report.stored, "store": report.store_path})
     if result.outcome is not Outcome.FOUND:
         print(f"python -m bridge tune: {result.reason}; nothing stored", file=sys.stderr)
         return 1

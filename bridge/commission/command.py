@@ -77,9 +77,7 @@ def _timeout(text: str) -> float:
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
-    parser.add_argument("--channel", required=True, help="CAN channel, e.g. can0")
-    parser.add_argument("--bitrate", type=int, default=500_000, help="bit/s (DCF Baudrate)")
+    cli.add_can_bus(parser, 500_000, "bit/s (DCF Baudrate)")
     parser.add_argument("--node-id", type=cli.node_id, required=True, help="the node (1..127)")
     parser.add_argument(
         "--eds", type=Path, help="EDS (or DCF) of the node; default: identified by 1000h/1018h"

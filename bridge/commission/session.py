@@ -15,6 +15,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +24,9 @@ from ..errors import BridgeError
 from ..interpolator import Table
 from ..node import Bridge
 from ..params import BridgeParams
+
+if TYPE_CHECKING:
+    from regulator.tuning import Record
 
 log = logging.getLogger("bridge")
 
@@ -41,7 +45,8 @@ class CommissioningStopped(BridgeError, RuntimeError):
 
 @dataclass
 class Recording:
-    """Per-cycle samples of a test (SI: load units, rad/s at the motor, N m or per mille)."""
+    """Per-cycle samples of a test (SI: load units, rad/s at the motor, N m or per mille):
+    the bridge's over the bus, and :func:`hil.loop.run_loop`'s without a bus."""
 
     position_reference: np.ndarray
     load_position: np.ndarray
@@ -67,6 +72,19 @@ class Recording:
             self.beta[:n],
             self.switching_factor[:n],
             n,
+        )
+
+    def record(self, stopped: str | None = None) -> Record:
+        """What the beta_T search judges of these samples (:class:`regulator.tuning.Record`)."""
+        from regulator.tuning import Record
+
+        return Record(
+            self.position_reference,
+            self.load_position,
+            self.beta,
+            self.switching_factor,
+            stopped,
+            self.torque,
         )
 
 

@@ -103,14 +103,7 @@ def bus_runner(
         stopped = None
         if c.state is not BridgeState.RUNNING:
             stopped = f"{c.stop_reason.name}: {c.stop_message}"
-        return Record(
-            rec.position_reference,
-            rec.load_position,
-            rec.beta,
-            rec.switching_factor,
-            stopped,
-            rec.torque,
-        )
+        return rec.record(stopped)
 
     return run, lambda: state["start"]
 

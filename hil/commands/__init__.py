@@ -1,0 +1,1 @@
+"""One module per ``python -m hil`` command (see hil/__main__.py, virtual_bus/cli.py)."""

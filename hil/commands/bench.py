@@ -27,7 +27,6 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = DESCRIPTION
     parser.add_argument("--cycles", type=cli.count, default=7000, help="lockstep cycles (7000)")
     parser.add_argument(
         "--seconds", type=cli.positive_float, default=60.0, help="real-time run (60 s)"

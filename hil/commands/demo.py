@@ -20,7 +20,6 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = DESCRIPTION
     parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
     parser.add_argument(
         "--axis", type=Path, default=PAPER_AXIS, help="axis file (default config/paper_axis.toml)"

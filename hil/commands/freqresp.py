@@ -7,7 +7,8 @@ import argparse
 import numpy as np
 
 from bridge.commands.freqresp import add_excitation_arguments, plan_maker, write_results
-from virtual_bus import cli
+
+from .common import add_axis_and_out, simulated_axis_file
 
 NAME = "freqresp"
 HELP = "the speed loop's frequency response (Fig. 2) on the simulated axis, offline"
@@ -20,9 +21,7 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = DESCRIPTION
-    parser.add_argument("--axis", type=cli.existing_file, required=True, help="axis file")
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="report directory")
+    add_axis_and_out(parser)
     add_excitation_arguments(parser)
 
 
@@ -30,7 +29,6 @@ def run(args: argparse.Namespace) -> int:
     from plant_sim.physics.model import AxisPlant
 
     from ..offline import analytic_loop, frequency_response
-    from .common import simulated_axis_file
 
     axis = simulated_axis_file(args.axis)
     plan = plan_maker(args)(axis.control.position_cycle)

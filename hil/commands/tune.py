@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from bridge.commands.tune import add_tuning_arguments, options_from, trial_line
+from bridge.commands.tune import add_tuning_arguments, options_from, trial_line, write_report
 from virtual_bus import cli
+
+from .common import add_axis_and_out, simulated_axis_file
 
 NAME = "tune"
 HELP = "find beta_T by the paper's procedure on the simulated axis (offline, fast)"
@@ -19,9 +21,7 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = DESCRIPTION
-    parser.add_argument("--axis", type=cli.existing_file, required=True, help="axis file")
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="report directory")
+    add_axis_and_out(parser)
     parser.add_argument(
         "--following-error-limit",
         type=cli.positive_float,
@@ -31,12 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bridge.commission.figures import search_dict, trials_figure, write_json
     from bridge.params import BridgeParams
     from regulator.tuning import Outcome, TuningError, search
 
     from ..offline import base_regulator, kernel_runner, safety_of
-    from .common import simulated_axis_file
 
     axis = simulated_axis_file(args.axis)
     options = options_from(args)
@@ -60,11 +58,7 @@ def run(args: argparse.Namespace) -> int:
     except TuningError as exc:
         print(f"python -m hil tune: {exc}", file=sys.stderr)
         return 1
-    out = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "tune.json", search_dict(result) | {"axis": str(args.axis)})
-    trials_figure(result, cycle_s, out / "trials.png", 1e6)
-    print(f"wrote {out / 'tune.json'}, {out / 'trials.png'}")
+    write_report(result, cycle_s, args.out, {"axis": str(args.axis)})
     if result.outcome is not Outcome.FOUND:
         print(f"python -m hil tune: {result.reason}", file=sys.stderr)
         return 1

@@ -13,11 +13,9 @@ from regulator import RegulatorConfig
 from regulator.errors import RegulatorError
 from virtual_bus import cli
 from virtual_bus.formats.axis import AxisConfig, load_axis
+from virtual_bus.shipped import CONFIG_DIR, PAPER_AXIS
 
 from ..errors import ScenarioError
-
-ROOT = Path(__file__).resolve().parents[2]
-PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
 
 
 def add_axis_argument(parser: argparse.ArgumentParser, default: Path | None = PAPER_AXIS) -> None:
@@ -28,7 +26,7 @@ def add_axis_argument(parser: argparse.ArgumentParser, default: Path | None = PA
         required=default is None,
         metavar="AXIS.toml",
         help="axis file (docs/axis-file.md)"
-        + (f"; default {default.relative_to(ROOT)}" if default else ""),
+        + (f"; default {default.relative_to(CONFIG_DIR.parent)}" if default else ""),
     )
 
 

@@ -18,8 +18,7 @@ from virtual_bus.formats.trace import read_trace
 from virtual_bus.progress import Progress
 
 from ..diagnosis.effects import Effect
-from ..diagnosis.engine import DiagnosisOptions, diagnose
-from ..diagnosis.replay import prepare_replay
+from ..diagnosis.engine import DiagnosisOptions, diagnose, prepare
 from ..diagnosis.report import REPORT_FILES, write_report
 from .common import plain_warnings
 
@@ -61,7 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--min-improvement",
         type=float,
         default=0.5,
-        help="least held-out cost reduction for that choice, per cent (0.5)",
+        help="least held-out cost reduction for a named effect to stay named and for that "
+        "choice, per cent (0.5)",
     )
     parser.add_argument(
         "--max-effects", type=int, default=3, help="most effects named (rounds of selection, 3)"
@@ -96,15 +96,20 @@ def run(args: argparse.Namespace) -> int:
     with plain_warnings():
         recording = read_trace(args.recording)
         validation = [read_trace(v) for v in args.validate or ()]
-        # check that axis and recordings fit together before any long work
-        prepare_replay(recording, axis, source=str(args.recording))
-        for path, trace in zip(args.validate or (), validation, strict=True):
-            prepare_replay(trace, axis, source=str(path))
+        # the one check that axis and recordings fit together, before any long work; the
+        # diagnosis goes on from it
+        prepared = prepare(
+            recording,
+            axis,
+            validation or None,
+            options,
+            sources=(str(args.recording), *(str(v) for v in args.validate or ())),
+        )
     progress = Progress(f"plant_sim {NAME}", quiet=args.quiet or args.no_progress)
     with progress.bar(None, "diagnose", unit="sim") as bar, warnings.catch_warnings():
         warnings.simplefilter("ignore", TraceWarning)  # already printed above
         warnings.simplefilter("ignore", RuntimeWarning)  # unstable trial parameter sets
-        diagnosis = diagnose(recording, axis, validation or None, options, bar)
+        diagnosis = diagnose(recording, axis, validation or None, options, bar, prepared)
     write_report(diagnosis, out, source=str(args.recording))
     left = ", ".join(e.value for e in diagnosis.left_out) or "nothing"
     fits = ", ".join(

@@ -28,9 +28,10 @@ import numpy as np
 from virtual_bus.formats.axis import dump_axis, load_axis
 from virtual_bus.formats.trace import Trace
 from virtual_bus.progress import Progress
+from virtual_bus.shipped import PAPER_AXIS
 
 from ..fleet.analyse import analyse
-from ..fleet.demo_fleet import PAPER_AXIS, TRACE_COLUMNS, simulate_recording
+from ..fleet.demo_fleet import TRACE_COLUMNS, simulate_recording
 from ..fleet.job import monitor
 from ..fleet.sources import RecordingKind, Source, discover
 from ..physics.simulate import References, simulate

@@ -1,6 +1,6 @@
 """The whole diagnosis: recording + nominal axis file -> what the model leaves out.
 
-1. :func:`_prepare` — the recording checked against the axis file and resampled for the
+1. :func:`prepare` — the recording checked against the axis file and resampled for the
    closed-loop replay (:mod:`.replay`); its scales; the blocks held out (the odd ones of about
    1 s, or the ``validation`` recordings).
 2. **Evidence** (:func:`.screen.screen`) — every effect the model lacks tested on the
@@ -78,6 +78,7 @@ __all__ = [
     "Score",
     "SignalFit",
     "diagnose",
+    "prepare",
     "signal_fits",
 ]
 
@@ -92,13 +93,17 @@ def diagnose(
     validation: Trace | Sequence[Trace] | None = None,
     options: DiagnosisOptions = DEFAULT_OPTIONS,
     progress: ProgressBar | None = None,
+    prepared: Context | None = None,
 ) -> Diagnosis:
     """Diagnose what ``nominal`` leaves out of ``recording`` (see the module docstring).
     ``validation``: one or more second recordings held out instead of the odd blocks.
+    ``prepared``: what :func:`prepare` returned for these inputs (a caller that checks them
+    before any long work passes its check on instead of having it done twice).
 
     Raises DiagnosisInputError when a recording and the axis do not fit together or the
     recording cannot be diagnosed (too short, the axis never moves)."""
-    ctx = _prepare(recording, nominal, validation, options, progress)
+    ctx = prepared if prepared is not None else prepare(recording, nominal, validation, options)
+    ctx.progress = progress
     pool = ThreadPoolExecutor(max_workers=options.jobs) if options.jobs > 1 else None
     # the linear algebra here is on small matrices and the simulations run in ``pool``:
     # BLAS threads would only compete with them
@@ -131,15 +136,20 @@ def diagnose(
 # ----------------------------------------------------------------------------------------
 # 1. prepare
 # ----------------------------------------------------------------------------------------
-def _prepare(
+def prepare(
     recording: Trace,
     nominal: AxisConfig,
-    validation: Trace | Sequence[Trace] | None,
-    options: DiagnosisOptions,
-    progress: ProgressBar | None,
+    validation: Trace | Sequence[Trace] | None = None,
+    options: DiagnosisOptions = DEFAULT_OPTIONS,
+    sources: Sequence[str] = (),
 ) -> Context:
+    """The one check that the recordings and the axis file fit together and can be
+    diagnosed (:func:`.replay.prepare_replay`, the length, a reference that moves), and the
+    recording resampled for the replay. ``sources``: names of the recording and of each
+    validation recording for the messages (file names; default "recording", "validation
+    recording N"). Raises DiagnosisInputError (one line) otherwise."""
     t_start = time.perf_counter()
-    inp = prepare_replay(recording, nominal)
+    inp = prepare_replay(recording, nominal, sources[0] if sources else "recording")
     if validation is None:
         vals: list[Trace] = []
     elif isinstance(validation, Trace):
@@ -147,7 +157,10 @@ def _prepare(
     else:
         vals = list(validation)
     val_inps = [
-        prepare_replay(v, nominal, f"validation recording {i + 1}") for i, v in enumerate(vals)
+        prepare_replay(
+            v, nominal, sources[i + 1] if len(sources) > i + 1 else f"validation recording {i + 1}"
+        )
+        for i, v in enumerate(vals)
     ]
     if not val_inps and inp.duration_s < 2 * MIN_BLOCKS * options.block_s:
         raise DiagnosisInputError(
@@ -168,7 +181,7 @@ def _prepare(
         else np.ones(inp.n_samples, dtype=bool)
     )
     return Context(
-        recording, nominal, inp, val_inps, data_scales(inp), train, options, progress, t_start
+        recording, nominal, inp, val_inps, data_scales(inp), train, options, None, t_start
     )
 
 

@@ -110,11 +110,22 @@ def _evidence(d: Diagnosis) -> list[str]:
         v = next((v for v in ev.verdicts if v.effect is e and v.significant), None)
         how = f" ({v.relation}, z = {v.z:.3g}, p = {v.p:.2g})" if v is not None else ""
         named.append(f"{e.value} — {MODELS[e].description}{how}: {MODELS[e].describe(d.fitted)}")
-    parts.append(
-        ("the model leaves out " + "; then ".join(named) + ".")
-        if named
-        else "no effect of the table shows in the measured signals."
-    )
+    gated = [g for g in d.closed_loop.gate if not g.kept]
+    if named:
+        parts.append("the model leaves out " + "; then ".join(named) + ".")
+    elif not gated:
+        parts.append("no effect of the table shows in the measured signals.")
+    if gated:
+        parts.append(
+            "Evidence without a model gain (significant in the measured signals, but the "
+            "closed-loop model with it does not predict the held-out data better by at least "
+            f"{100.0 * d.options.min_improvement:g} %; not named): "
+            + ", ".join(
+                f"{g.effect.value} (held-out cost {-100.0 * g.gain:+.2g} %, z = {g.z:.2g})"
+                for g in gated
+            )
+            + "."
+        )
     below = [
         f"{v.effect.value} ({v.note})"
         for v in ev.verdicts
@@ -183,5 +194,6 @@ def explain(d: Diagnosis) -> str:
             f"{a.alternative.value} explains the same signature as {a.named.value}{held}; "
             f"{a.named.value} is named. To tell them apart: {a.experiment}."
         )
-    parts += d.notes
+    # the held-out gate's notes are summed up above
+    parts += [n for n in d.notes if not n.startswith("evidence without a model gain")]
     return " ".join(parts)

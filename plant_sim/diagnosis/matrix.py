@@ -63,12 +63,18 @@ PLANTS = ("kernel", "independent", "third")
 
 
 def _tests_package(name: str) -> object:
-    tests_dir = Path(__file__).resolve().parents[2] / "tests"
-    if not (tests_dir / name).is_dir():
-        raise ValueError(f"{tests_dir / name} not found (the plant lives in this checkout's tests)")
-    if str(tests_dir) not in sys.path:
-        sys.path.insert(0, str(tests_dir))
-    return importlib.import_module(name)
+    """``tests.<name>`` of this checkout, imported under the name the test suite uses (the
+    plants' compiled functions are cached by numba under their module's name: imported as
+    a top-level ``third_plant`` here and as ``tests.third_plant`` by the tests, one cache
+    would point at a module the other cannot import)."""
+    root = Path(__file__).resolve().parents[2]
+    if not (root / "tests" / name).is_dir():
+        raise ValueError(
+            f"{root / 'tests' / name} not found (the plant lives in this checkout's tests)"
+        )
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    return importlib.import_module(f"tests.{name}")
 
 
 def load_plant(name: str) -> MatrixPlant:
@@ -78,7 +84,7 @@ def load_plant(name: str) -> MatrixPlant:
         return KERNEL_PLANT
     if name == "independent":
         _tests_package("independent_plant")
-        recording = importlib.import_module("independent_plant.recording")
+        recording = importlib.import_module("tests.independent_plant.recording")
 
         def conceal(gen: GeneratedCase) -> dict[str, float]:
             return concealment(gen, recording.simulator)
@@ -86,7 +92,7 @@ def load_plant(name: str) -> MatrixPlant:
         return MatrixPlant("independent", _kernel_cases, recording.generate, conceal)
     if name == "third":
         third = _tests_package("third_plant")
-        cases = importlib.import_module("third_plant.cases")
+        cases = importlib.import_module("tests.third_plant.cases")
 
         def third_cases(seed: int, duration_s: float) -> list[Case]:
             return cases.test_set(seed, duration_s)

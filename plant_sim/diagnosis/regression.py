@@ -26,7 +26,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .effects import Effect
-from .randomization import ScanResult, Whitener, fit_whitener, scan_test, time_blocks
+from .randomization import (
+    ScanResult,
+    Whitener,
+    between_blocks_factor,
+    fit_whitener,
+    scan_test,
+    time_blocks,
+)
 
 
 @dataclass(frozen=True)
@@ -97,7 +104,9 @@ class Fitted:
     noise: float  # std of the whitened residual
 
     def standard_errors(self, rec: Relation) -> dict[str, float]:
-        """Block-robust standard errors of the base coefficients (sandwich over blocks)."""
+        """Block-robust standard errors of the base coefficients (sandwich over blocks), each
+        widened by its scores' correlation between blocks (:func:`.randomization.
+        between_blocks_factor`)."""
         keys = list(self.keys)
         if not keys:
             return {}
@@ -108,7 +117,12 @@ class Fitted:
         nb = int(bl.max()) + 1 if len(bl) else 0
         g = np.stack([np.bincount(bl, x[:, j] * e, nb) for j in range(x.shape[1])], axis=1)
         cov = xtx_inv @ (g.T @ g) @ xtx_inv
-        return {k: float(np.sqrt(max(cov[i, i], 0.0))) for i, k in enumerate(keys)}
+        # the coefficient's own score: the block sums of (XᵀX)⁻¹x·e
+        own = g @ xtx_inv
+        return {
+            k: float(np.sqrt(max(cov[i, i], 0.0) * between_blocks_factor(own[:, i : i + 1])))
+            for i, k in enumerate(keys)
+        }
 
 
 def _lstsq(x: np.ndarray, y: np.ndarray) -> np.ndarray:

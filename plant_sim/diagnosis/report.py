@@ -108,6 +108,18 @@ def report_dict(d: Diagnosis) -> dict[str, Any]:
                 "within_datasheet": _model_fit(loop.base),
                 "final": _model_fit(loop.final),
                 "alternatives": [_model_fit(m) for m in loop.alternatives],
+                "held_out_gate": [
+                    {
+                        "effect": g.effect.value,
+                        "cost_without": g.cost_without,
+                        "cost_with": g.cost_with,
+                        "gain_percent": 100.0 * g.gain,
+                        "z": g.z,
+                        "p_value": g.p,
+                        "kept": g.kept,
+                    }
+                    for g in loop.gate
+                ],
                 "improvement_percent": loop.improvement_percent,
                 "z": loop.z,
                 "p_value": loop.p,

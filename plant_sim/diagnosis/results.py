@@ -25,16 +25,21 @@ DECISION_RULE = (
     "coefficients equal the replays' (what the estimator gives where the effect is absent). "
     "Statistic: the residual reduction, the largest over a scan; null distribution: a wild "
     "bootstrap of the recording's own residual in blocks of its correlation length (Gaussian "
-    "multipliers). An effect is named when p < {alpha:g} / (effects tested) (Bonferroni: "
+    "multipliers), widened by the scores' correlation between blocks over a 16th of the "
+    "recording (a residual that wanders for seconds). An effect is named when "
+    "p < {alpha:g} / (effects tested) (Bonferroni: "
     "{alpha:g} is the false-alarm rate per recording and round), its estimate is physical and "
     "above the effect's absent value, and (closed loop) the effect at its own size explains "
     "the signature (gain 0.5..2). Forward selection: the largest z is named unless another "
     "significant effect of the same relation explains it; two that explain each other are "
     "ambiguous (the one with fewer parameters named). Then the named effects are modelled and "
     "the whole model re-fitted in closed loop, nominal parameters within their data-sheet "
-    "uncertainty unless the evidence puts them beyond it; the held-out data (odd blocks or "
-    "--validate) decide between ambiguous explanations: the other is named when it fits them "
-    "better at p < {choice_alpha:g} by at least {min_improvement:g} %."
+    "uncertainty unless the evidence puts them beyond it, and scored on the held-out data (odd "
+    "blocks or --validate): in naming order an effect stays named only when the model with it "
+    "predicts them better than the model without it (both fitted alike) by at least "
+    "{min_improvement:g} % (otherwise: evidence without a model gain), and of two ambiguous "
+    "explanations the other is named when it fits them better at p < {choice_alpha:g} by at "
+    "least {min_improvement:g} %."
 )
 
 
@@ -47,7 +52,9 @@ class DiagnosisOptions:
     alpha: float = 0.01
     #: level at which the held-out data name an ambiguous alternative over the evidence's
     choice_alpha: float = 0.05
-    min_improvement: float = 0.005  # least held-out cost reduction to name an alternative
+    #: least held-out cost reduction for an effect to stay named (the held-out gate) and for
+    #: an ambiguous alternative to be named instead
+    min_improvement: float = 0.005
     block_s: float = 1.0  # length of the interleaved fit / held-out blocks, s
     max_effects: int = 3  # rounds of forward selection
     max_nfev: int = 4  # least-squares iterations of each closed-loop fit

@@ -126,7 +126,7 @@ class Screening:
 # ----------------------------------------------------------------------------------------
 # estimates -> axis values
 # ----------------------------------------------------------------------------------------
-def _with_contact(model: AxisConfig) -> AxisConfig | None:
+def with_contact(model: AxisConfig) -> AxisConfig | None:
     """``model`` with a stiff contact for free play when it is rigid (None: a lumped rigid
     model has no motor-side inertia for one)."""
     if not model.is_rigid:
@@ -179,7 +179,7 @@ def effect_values(
             return {}, f"free play {d:.3g} outside (0, 0.1]"
         values: dict[str, float | None] = {"mechanics.backlash": d}
         if model.is_rigid:
-            on = _with_contact(model)
+            on = with_contact(model)
             if on is None:
                 return (
                     {},
@@ -633,17 +633,22 @@ def screen(
     loop_left = set(candidates & LOOP_EFFECTS)
     if Effect.BACKLASH in candidates and not m_rec.two_systems:
         loop_left.add(Effect.BACKLASH)
-    try:
-        rnd = _calibrate(
+
+    def calibrate(axis: AxisConfig, tested: set[Effect], with_named: list[Effect]) -> _Round:
+        """The relations of ``axis`` calibrated on its replays (:func:`_calibrate`)."""
+        return _calibrate(
             inp,
             recording,
             m_rec,
-            model,
+            axis,
             scans,
             seed,
-            frozenset(remaining),
-            _contact(named, nominal),
+            frozenset(tested),
+            _contact(with_named, nominal),
         )
+
+    try:
+        rnd = calibrate(model, remaining, named)
     except _Unstable:
         raise DiagnosisInputError(
             "the axis file's closed loop diverges when replayed like the recording "
@@ -656,16 +661,7 @@ def screen(
     if moved != model:
         n_replays += 1
         try:
-            rnd_moved = _calibrate(
-                inp,
-                recording,
-                m_rec,
-                moved,
-                scans,
-                seed,
-                frozenset(remaining),
-                _contact(named, nominal),
-            )
+            rnd_moved = calibrate(moved, remaining, named)
         except _Unstable:
             notes.append(
                 "the model's parameters at the evidence's values make the closed loop unstable; "
@@ -682,7 +678,7 @@ def screen(
         sig, round_verdicts = _judge(tests, model, alpha_each, rnd_no, data)
         if loop_left and loop_model is not model and (rnd_no == 1 or loop_pending):
             lc = loop_candidates(
-                model, inp, frozenset(loop_left), not m_rec.two_systems, following, _with_contact
+                model, inp, frozenset(loop_left), not m_rec.two_systems, following, with_contact
             )
             lt, n_loop = loop_tests(inp, model, _kernel_options(model), lc, rng, pool)
             n_replays += n_loop
@@ -708,16 +704,7 @@ def screen(
             trial = _safe(model, vals_l)
             n_replays += 1
             try:
-                rnd_l = _calibrate(
-                    inp,
-                    recording,
-                    m_rec,
-                    trial,
-                    scans,
-                    seed,
-                    frozenset(remaining),
-                    _contact(named, nominal),
-                )
+                rnd_l = calibrate(trial, remaining, named)
             except _Unstable:
                 sig = plant_sig  # the loop effect at its estimate explains nothing
             else:
@@ -736,16 +723,7 @@ def screen(
             notes.append(f"{best.effect.value}: its estimate gives no valid axis; not named")
             continue
         try:
-            new_rnd = _calibrate(
-                inp,
-                recording,
-                m_rec,
-                new_model,
-                scans,
-                seed,
-                frozenset(remaining - {b for _, b in amb}),
-                _contact([*named, best.effect], nominal),
-            )
+            new_rnd = calibrate(new_model, remaining - {b for _, b in amb}, [*named, best.effect])
         except _Unstable:
             notes.append(
                 f"{best.effect.value}: the model with its estimate is unstable in closed loop; "

@@ -26,7 +26,7 @@ the motor encoder, a linear scale recorded alongside).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -507,10 +507,22 @@ def test_set(
 ) -> list[Case]:
     """Every effect once per family (so >= 2 recordings per effect) and ``none_per_family``
     recordings with nothing left out per family; seeds derived from ``seed``."""
+    return case_list({f: FAMILIES[f].effects for f in families}, seed, duration_s, none_per_family)
+
+
+def case_list(
+    families: Mapping[str, Iterable[Effect]],
+    seed: int,
+    duration_s: float,
+    none_per_family: int = 2,
+) -> list[Case]:
+    """A test set's cases: per family (name -> its effects) each effect once, then
+    ``none_per_family`` with nothing left out, named ``FAMILY-EFFECT`` / ``FAMILY-none-I``,
+    case seeds ``seed * 1000 + k`` in that order (any plant's test set)."""
     cases: list[Case] = []
     k = 0
-    for fam in families:
-        for effect in FAMILIES[fam].effects:
+    for fam, effects in families.items():
+        for effect in effects:
             cases.append(Case(f"{fam}-{effect.value}", fam, effect, seed * 1000 + k, duration_s))
             k += 1
         for i in range(none_per_family):

@@ -24,17 +24,17 @@ import canopen.network
 from canopen import LocalNode
 from canopen.objectdictionary import ObjectDictionary
 
-from virtual_bus.contract import HEARTBEAT_BASE, NMT_COB_ID, NmtCommand, NmtState
+from virtual_bus.contract import (
+    HEARTBEAT_BASE,
+    NMT_COB_ID,
+    NMT_TARGET_STATE,
+    NmtCommand,
+    NmtState,
+    nmt_command_for,
+)
 from virtual_bus.sdo_server import CheckedSdoServer
 
 logger = logging.getLogger(__name__)
-
-
-_TARGET = {
-    NmtCommand.START: NmtState.OPERATIONAL,
-    NmtCommand.STOP: NmtState.STOPPED,
-    NmtCommand.ENTER_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL,
-}
 
 
 class HeartbeatProducer(Protocol):
@@ -166,23 +166,17 @@ class DriveNmt:
                 self._on_reset(command)
                 self.boot()
             else:
-                self._set(_TARGET[command])
+                self._set(NMT_TARGET_STATE[command])
 
     def on_command(self, can_id: int, data: bytearray, timestamp: float) -> None:
         """Network callback for COB-ID 0: two bytes, command specifier and node id (0: all)."""
-        if len(data) != 2:
-            logger.warning("NMT frame with %d data bytes ignored (needs 2)", len(data))
-            return
-        specifier, node_id = data[0], data[1]
-        if node_id not in (0, self.id):
-            return
         try:
-            command = NmtCommand(specifier)
-        except ValueError:
-            allowed = ", ".join(f"0x{c:02X}" for c in NmtCommand)
-            logger.warning("NMT command 0x%02X ignored; allowed %s", specifier, allowed)
+            command = nmt_command_for(data, self.id)
+        except ValueError as exc:
+            logger.warning("%s", exc)
             return
-        self.execute(command)
+        if command is not None:
+            self.execute(command)
 
 
 class _GatedSdoServer(CheckedSdoServer):

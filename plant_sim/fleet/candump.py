@@ -29,11 +29,18 @@ from pathlib import Path
 import numpy as np
 
 from virtual_bus.contract import (
+    CAN_ID_MASK,
+    COB_ID_INVALID,
+    PDO_PARAMETERS_END,
+    RPDO_COMM_BASE,
     SDO_RX_BASE,
     SYNC_COB_ID,
+    pdo_comm_index,
+    pdo_mapping_index,
     pdo_of_cob_id,
     rpdo_cob_id,
     sdo_tx_cob_id,
+    split_mapping_entry,
     tpdo_cob_id,
 )
 from virtual_bus.formats.axis import AxisKind
@@ -155,7 +162,7 @@ class PdoMap:
         if len(data) != 8 or data[0] & 0xE3 != 0x23:  # expedited download with size
             return
         index = int.from_bytes(data[1:3], "little")
-        if not (0x1400 <= index <= 0x1BFF):
+        if not (RPDO_COMM_BASE <= index <= PDO_PARAMETERS_END):
             return
         size = 4 - ((data[0] >> 2) & 3)
         self.writes[(node, index, data[3])] = int.from_bytes(data[4 : 4 + size], "little")
@@ -163,24 +170,25 @@ class PdoMap:
 
     def frames(self, node: int, transmit: bool) -> dict[int, tuple[_Field, ...]]:
         """COB-ID -> fields of each valid PDO of ``node`` the log configured."""
-        comm0, map0 = (0x1800, 0x1A00) if transmit else (0x1400, 0x1600)
         out: dict[int, tuple[_Field, ...]] = {}
         for n in range(512):
-            cob = self.writes.get((node, comm0 + n, 1))
-            count = self.writes.get((node, map0 + n, 0))
-            if cob is None or not count or cob & 0x8000_0000:
+            comm, mapping = pdo_comm_index(transmit, n + 1), pdo_mapping_index(transmit, n + 1)
+            cob = self.writes.get((node, comm, 1))
+            count = self.writes.get((node, mapping, 0))
+            if cob is None or not count or cob & COB_ID_INVALID:
                 continue
             fields, offset = [], 0
             for sub in range(1, count + 1):
-                entry = self.writes.get((node, map0 + n, sub))
+                entry = self.writes.get((node, mapping, sub))
                 if entry is None:
                     break
-                key, bits = (entry >> 16, (entry >> 8) & 0xFF), entry & 0xFF
+                index, subindex, bits = split_mapping_entry(entry)
+                key = (index, subindex)
                 size = bits // 8
                 fields.append(_Field(key, offset, size, key != STATUSWORD))
                 offset += size
             else:
-                out[cob & 0x7FF] = tuple(fields)
+                out[cob & CAN_ID_MASK] = tuple(fields)
         return out
 
     def nodes(self) -> set[int]:

@@ -39,11 +39,10 @@ from virtual_bus.contract import (
 )
 from virtual_bus.formats.axis import AxisConfig, load_axis
 from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace
+from virtual_bus.shipped import PAPER_AXIS
 
 from ..physics.simulate import References, simulate
 
-ROOT = Path(__file__).resolve().parents[2]
-PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
 CONDITIONS = ("clean", "growing", "vibrating", "corrupt")
 GROWTH_UM_PER_MONTH = 10.0
 TRACE_COLUMNS = RECORDED_COLUMNS

@@ -18,13 +18,12 @@ import can
 import canopen
 import pytest
 
-from bridge import od as objdict
-from bridge.cycle import BridgeState, Command, StopReason
+from bridge.cycle import BridgeState, StopReason
 from bridge.interpolator import Move
 from bridge.node import Bridge
 from bridge.params import BridgeParams
-from bridge.timing import LockstepPacer
 from hil.harness import simulated_axis
+from tests.bridge_helpers import idle_bridge, sdo_tool
 from virtual_bus.formats.axis import load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
@@ -64,27 +63,14 @@ class Rig:
 @pytest.fixture
 def rig() -> Iterator[Rig]:
     channel = f"nmt-{uuid.uuid4().hex[:10]}"
-    bridge_bus = can.Bus(interface="virtual", channel=channel)
-    master_bus = can.Bus(interface="virtual", channel=channel)
-    tool_bus = can.Bus(interface="virtual", channel=channel)
-    network = canopen.Network(master_bus)
-    network.notifier = can.Notifier(master_bus, network.listeners, 0.02)
+    buses = [can.Bus(interface="virtual", channel=channel) for _ in range(3)]
+    bridge_bus, master_bus, tool_bus = buses
     clock = Clock()
-    bridge = Bridge(
-        bridge_bus, BridgeParams.for_axis(AXIS), AXIS.kind, LockstepPacer(0.001), wall=clock
-    )
     try:
-        bridge.start(configure_drive=False)
-        bridge.controller.command(Command.DISABLE)
-        master = canopen.RemoteNode(1, objdict.load_od())
-        network.add_node(master)
-        master.sdo.RESPONSE_TIMEOUT = BOUND_S
-        with bridge.serving():
-            yield Rig(bridge, clock, master, tool_bus)
+        with idle_bridge(bridge_bus, wall=clock) as bridge, sdo_tool(master_bus, BOUND_S) as m:
+            yield Rig(bridge, clock, m, tool_bus)
     finally:
-        network.notifier.stop(2.0)
-        bridge.close()
-        for bus in (bridge_bus, master_bus, tool_bus):
+        for bus in buses:
             bus.shutdown()
 
 

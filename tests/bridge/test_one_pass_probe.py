@@ -39,10 +39,10 @@ from tests.adapt_helpers import (
     mirror_mode,
     require_eds,
 )
+from tests.paths import CONFIG
 
-ROOT = Path(__file__).resolve().parents[2]
-DRIVES = ROOT / "config" / "drives"
-SIM_EDS = ROOT / "config" / "drive.eds"
+DRIVES = CONFIG / "drives"
+SIM_EDS = CONFIG / "drive.eds"
 
 
 @contextmanager

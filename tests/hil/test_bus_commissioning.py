@@ -33,11 +33,11 @@ from regulator import RegulatorConfig
 from regulator.frequency_response import Multisine
 from regulator.tuning import Outcome, TuningError
 from tests.command_line import next_line
+from tests.paths import CONFIG
 from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.formats.axis import AxisConfig, dump_axis, load_axis
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
 
-CONFIG = Path(__file__).resolve().parents[2] / "config"
 PAPER = load_axis(CONFIG / "paper_axis.toml")
 LIMIT_CYCLE = PAPER.with_values({"friction.viscous": LIMIT_CYCLE_VISCOUS})
 LINEAR = PAPER.with_values({"mechanics.backlash": 0.0, "friction.coulomb": 0.0})

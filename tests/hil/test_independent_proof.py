@@ -13,7 +13,6 @@ BacklashRegulator) with the one-cycle PDO delay (hil.loop); only the plant is fo
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,11 +26,11 @@ from regulator import RegulatorConfig
 from regulator.frequency_response import Multisine
 from regulator.tuning import Outcome, SearchConfig, TuningMotion, search
 from tests.independent_plant import SteppedPlant
+from tests.paths import CONFIG
 from virtual_bus.formats.axis import AxisConfig, load_axis
 
 pytestmark = pytest.mark.slow
 
-CONFIG = Path(__file__).resolve().parents[2] / "config"
 
 PAPER = load_axis(CONFIG / "paper_axis.toml")
 #: section X's limit cycle exists with the viscous friction of the paper's figures

@@ -18,9 +18,9 @@ from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
 from plant_sim.physics.model import AxisPlant
 from regulator.frequency_response import Multisine
 from regulator.tuning import TuningError
+from tests.paths import CONFIG
 from virtual_bus.formats.axis import dump_axis, load_axis
 
-CONFIG = Path(__file__).resolve().parents[2] / "config"
 PAPER = load_axis(CONFIG / "paper_axis.toml")
 LINEAR = PAPER.with_values({"mechanics.backlash": 0.0, "friction.coulomb": 0.0})
 PLAN = ExcitationPlan(

@@ -17,16 +17,14 @@ import uuid
 from collections.abc import Callable, Iterator
 
 import can
-import canopen
 import pytest
 from canopen.sdo import SdoAbortedError, SdoClient
 
 import tests.sdo_oracle as oracle  # tests/ helper module
 from bridge import od as objdict
-from bridge.cycle import Command
 from plant_sim.drive.od import DEFAULT_EDS_PATH as DRIVE_EDS
 from plant_sim.drive.rig import virtual_rig
-from tests.bridge_helpers import paper_bridge
+from tests.bridge_helpers import idle_bridge, sdo_tool
 from virtual_bus.formats.axis import load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
@@ -65,25 +63,16 @@ def bridge_server() -> Iterator[tuple]:
     channel = f"sdo-{uuid.uuid4().hex[:12]}"
     bridge_bus = can.Bus(interface="virtual", channel=channel)
     tool_bus = can.Bus(interface="virtual", channel=channel)
-    network = canopen.Network(tool_bus)
-    network.notifier = can.Notifier(tool_bus, network.listeners, 0.02)
-    b = paper_bridge(bridge_bus)
     try:
-        b.start(configure_drive=False)
-        b.controller.command(Command.DISABLE)
-        tool = canopen.RemoteNode(1, objdict.load_od())
-        network.add_node(tool)
-        tool.sdo.RESPONSE_TIMEOUT = TIMEOUT_S
+        with idle_bridge(bridge_bus) as b, sdo_tool(tool_bus, TIMEOUT_S) as tool:
 
-        def snapshot() -> object:
-            c = b.controller
-            return (c.params, c.state, b.objects._last_target, copy.deepcopy(b.node.data_store))
+            def snapshot() -> object:
+                c = b.controller
+                data = copy.deepcopy(b.node.data_store)
+                return (c.params, c.state, b.objects._last_target, data)
 
-        with b.serving():
             yield tool.sdo, BRIDGE_OD, snapshot
     finally:
-        network.notifier.stop(2.0)
-        b.close()
         bridge_bus.shutdown()
         tool_bus.shutdown()
 

@@ -1,9 +1,8 @@
 """Predict every SDO download answer of a node from its EDS file alone.
 
-Written apart from the project's servers and from ``tests/sdo_oracle.py``: the EDS is read with
-:mod:`configparser`, the data type sizes are CiA 301's (table 44), the order of checks is the
-one CiA 301 7.2.4.3 implies and CANopenNode follows (object, sub-index, access, length, value
-against LowLimit/HighLimit), and what a node enforces beyond that is read from the
+Written apart from the project's servers: the EDS, the data type sizes and CiA 301's own
+checks (object, sub-index, access, length, value against LowLimit/HighLimit) are those of
+``tests/sdo_oracle.py``; what a node enforces beyond that is read from the
 ``[requires EXPR else CODE]`` / ``[abort EXPR]`` rules its Descriptions state (the notation is
 in ``docs/peers.md``). EXPR is evaluated by a small interpreter over Python's ``ast`` that
 allows arithmetic, comparisons, ``and``/``or``/``not``, ``x if c else y``, ``value``, ``present``,
@@ -20,7 +19,6 @@ another length, 0604 0042 beyond 64 bits).
 from __future__ import annotations
 
 import ast
-import configparser
 import math
 import re
 import struct
@@ -28,37 +26,21 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-NO_OBJECT = 0x0602_0000
-NO_SUBINDEX = 0x0609_0011
-READ_ONLY = 0x0601_0002
-WRITE_ONLY = 0x0601_0001
-LENGTH_TOO_HIGH = 0x0607_0012
-LENGTH_TOO_LOW = 0x0607_0013
-VALUE_RANGE = 0x0609_0030
-TOO_HIGH = 0x0609_0031
-TOO_LOW = 0x0609_0032
-NOT_MAPPABLE = 0x0604_0041
-PDO_LENGTH = 0x0604_0042
+from tests.sdo_oracle import (
+    APPLICATION,
+    NO_OBJECT,
+    NOT_MAPPABLE,
+    PDO_LENGTH,
+    READABLE,
+    REAL32,
+    REAL64,
+    TYPES,
+    WRITABLE,
+    Declared,
+    expected,
+    read_eds,
+)
 
-# CiA 301 table 44: data type -> (bytes, struct format)
-TYPES: dict[int, tuple[int, str]] = {
-    0x01: (1, "B"),  # BOOLEAN
-    0x02: (1, "b"),  # INTEGER8
-    0x03: (2, "h"),  # INTEGER16
-    0x04: (4, "i"),  # INTEGER32
-    0x05: (1, "B"),  # UNSIGNED8
-    0x06: (2, "H"),  # UNSIGNED16
-    0x07: (4, "I"),  # UNSIGNED32
-    0x08: (4, "f"),  # REAL32
-    0x11: (8, "d"),  # REAL64
-    0x15: (8, "q"),  # INTEGER64
-    0x1B: (8, "Q"),  # UNSIGNED64
-}
-BOOLEAN, REAL32, REAL64 = 0x01, 0x08, 0x11
-WRITABLE = frozenset({"rw", "wo", "rww", "rwr"})
-READABLE = frozenset({"ro", "rw", "const", "rww", "rwr"})
-
-_SECTION = re.compile(r"([0-9A-Fa-f]{4})(?:sub([0-9A-Fa-f]{1,2}))?")
 _RULE = re.compile(r"\[(requires|abort) ([^\]]*?)(?: else ([0-9A-Fa-f]{4}) ([0-9A-Fa-f]{4}))?\]")
 _REF = re.compile(r"\b([0-9A-Fa-f]{4})h(?::([0-9A-Fa-f]{2}))?\b")
 
@@ -72,41 +54,10 @@ class Rule:
 
 
 @dataclass(frozen=True)
-class Obj:
-    index: int
-    sub: int
-    data_type: int
-    access: str
-    low: int | float | None
-    high: int | float | None
-    pdo_mapping: bool
-    rules: tuple[Rule, ...]
+class Obj(Declared):
+    """A sub-object as the EDS declares it, with the rules its Description states."""
 
-    @property
-    def size(self) -> int | None:
-        entry = TYPES.get(self.data_type)
-        return None if entry is None else entry[0]
-
-    def decode(self, data: bytes) -> int | float:
-        return struct.unpack("<" + TYPES[self.data_type][1], data)[0]
-
-    def encode(self, value: int | float) -> bytes:
-        return struct.pack("<" + TYPES[self.data_type][1], value)
-
-
-def _number(text: str, data_type: int, node_id: int) -> int | float:
-    text = text.strip()
-    if data_type in (REAL32, REAL64):
-        return float(text)
-    total = 0
-    for term in text.upper().replace("$NODEID", str(node_id)).split("+"):
-        term = term.strip()
-        total += int(term, 16) if term.startswith("0X") else int(term)
-    size = TYPES[data_type][0] * 8
-    signed = TYPES[data_type][1].islower() and data_type != BOOLEAN
-    if signed and total >= 1 << (size - 1):  # a signed limit written as hex
-        total -= 1 << size
-    return total
+    rules: tuple[Rule, ...] = ()
 
 
 def _rules(description: str, where: str) -> tuple[Rule, ...]:
@@ -146,31 +97,11 @@ class Eds:
     """The objects an EDS declares (VARs and sub-indices), keyed (index, sub-index)."""
 
     def __init__(self, path: Path, node_id: int) -> None:
-        parser = configparser.ConfigParser(strict=False, interpolation=None)
-        parser.optionxform = str  # type: ignore[assignment,method-assign]
-        parser.read(path, encoding="utf-8")
         self.path = path
-        self.objects: dict[tuple[int, int], Obj] = {}
-        for section in parser.sections():
-            m = _SECTION.fullmatch(section)
-            if not m:
-                continue
-            s = parser[section]
-            if int(s.get("ObjectType", "0x7"), 0) != 7:
-                continue
-            index, sub = int(m.group(1), 16), int(m.group(2) or "0", 16)
-            data_type = int(s["DataType"], 0)
-            low, high = s.get("LowLimit", ""), s.get("HighLimit", "")
-            self.objects[(index, sub)] = Obj(
-                index,
-                sub,
-                data_type,
-                s["AccessType"].strip().lower(),
-                _number(low, data_type, node_id) if low.strip() else None,
-                _number(high, data_type, node_id) if high.strip() else None,
-                s.get("PDOMapping", "0").strip() not in ("", "0"),
-                _rules(s.get("Description", ""), section),
-            )
+        self.objects: dict[tuple[int, int], Obj] = {
+            key: Obj(**vars(d), rules=_rules(d.description, f"{d.index:04X}sub{d.sub:X} of {path}"))
+            for key, d in read_eds(path, node_id).items()
+        }
         self.indices = frozenset(i for i, _ in self.objects)
 
     @property
@@ -243,32 +174,13 @@ class _Context:
 def predict(eds: Eds, index: int, sub: int, data: bytes, read: Reader) -> int | None:
     """The abort code a download of ``data`` to ``index``:``sub`` gets, or None (success).
     ``read(index, sub)`` uploads an object's present value (rules that need one)."""
-    if index not in eds.indices:
-        return NO_OBJECT
-    obj = eds.objects.get((index, sub))
-    if obj is None:
-        return NO_SUBINDEX
-    if obj.access not in WRITABLE:
-        return READ_ONLY
-    size = obj.size
-    if size is None:  # strings, domains: any length, no value rules here
+    code = expected(eds.objects, index, sub, data)
+    if code != APPLICATION:
+        return code
+    obj = eds.objects[(index, sub)]
+    if obj.size is None:  # strings, domains: any length, no value rules here
         return None
-    if len(data) > size:
-        return LENGTH_TOO_HIGH
-    if len(data) < size:
-        return LENGTH_TOO_LOW
-    value = obj.decode(data)
-    if obj.data_type == BOOLEAN and value not in (0, 1):
-        return VALUE_RANGE
-    if isinstance(value, float) and math.isnan(value):
-        if obj.low is not None or obj.high is not None:
-            return VALUE_RANGE
-    else:
-        if obj.low is not None and value < obj.low:
-            return TOO_LOW
-        if obj.high is not None and value > obj.high:
-            return TOO_HIGH
-    context = _Context(eds, read, obj, value)
+    context = _Context(eds, read, obj, obj.decode(data))
     for rule in obj.rules:
         result = context.evaluate(rule)
         if rule.kind == "requires" and not result:

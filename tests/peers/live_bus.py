@@ -9,6 +9,7 @@ compile on a loaded 2-core machine (a drive compiles before its boot-up message)
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -16,14 +17,15 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import can
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.paths import ROOT
+
 STATE_BOUND_S = 900.0
 
 
@@ -160,6 +162,28 @@ def parse_lines(lines: Sequence[str]) -> list[Frame]:
 #: candump's socket receive buffer (bytes): a frame flood beside it on one CPU must not
 #: overflow its queue (it then drops frames; ``-d`` would report them).
 CANDUMP_RCVBUF = 8 * 1024 * 1024
+
+
+#: Where the kernel keeps the receive buffer a socket gets unless it asks (bytes).
+RMEM_DEFAULT = Path("/proc/sys/net/core/rmem_default")
+
+
+@contextlib.contextmanager
+def default_receive_buffer(size: int) -> Iterator[bool]:
+    """Raise the kernel's default socket receive buffer to ``size`` while the block runs,
+    for a can-utils program that cannot ask for one itself (``canbusload``): with the default
+    (~240 frames) it loses frames of a lockstep burst while its one CPU runs the loop, and
+    counts fewer than were sent. Yields False (changing nothing) where it is not writable."""
+    try:
+        old = RMEM_DEFAULT.read_text()
+        RMEM_DEFAULT.write_text(str(max(size, int(old))))
+    except OSError:
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        RMEM_DEFAULT.write_text(old)
 
 
 def candump(channel: str = "vcan0") -> Program:

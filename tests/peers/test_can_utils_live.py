@@ -34,11 +34,13 @@ import canopen
 import pytest
 
 from tests.peers.live_bus import (
+    CANDUMP_RCVBUF,
     ROOT,
     Frame,
     Program,
     bridge_argv,
     candump,
+    default_receive_buffer,
     drive_process,
     find_window,
     mark_end,
@@ -291,10 +293,17 @@ def test_canbusload_agrees_with_bridge_busload(tmp_path: Path) -> None:
     table = _busload_table(1000)
     assert set(table) == {"080", "182", "282", "202"}  # SYNC, TPDO1, TPDO2, RPDO1
     recorder = candump()
-    meter = Program(["canbusload", "vcan0@1000000"], "canbusload")
     drive = None
+    # canbusload cannot ask for a receive buffer: it gets the default while it opens its socket
+    with default_receive_buffer(CANDUMP_RCVBUF):
+        meter = Program(["canbusload", "vcan0@1000000"], "canbusload")
+        try:
+            meter.wait_for(lambda lines: len(lines) >= 1, "its first line")
+        except BaseException:
+            meter.stop(2)
+            recorder.stop(2)
+            raise
     try:
-        meter.wait_for(lambda lines: len(lines) >= 1, "its first line")
         drive = drive_process(axis_file, "lockstep")
         bridge = Program(bridge_argv(axis_file, "lockstep", tmp_path, *MOVE), "bridge run")
         code = bridge.finish()

@@ -121,7 +121,7 @@ def test_every_object_of_the_eds_reads(peer: Peer) -> None:
         answer = peer.gw.read(peer.node_id, index, sub)
         where = f"{index:04X}h:{sub:02X}"
         if obj.access == "wo":
-            assert answer.abort == ep.WRITE_ONLY, f"{where}: {answer.text}"
+            assert answer.abort == oracle.WRITE_ONLY, f"{where}: {answer.text}"
             continue
         assert answer.ok, f"{where}: {answer.text}"
         if obj.size is not None:
@@ -136,7 +136,7 @@ def _lengths_and_limits(obj: ep.Obj, present: bytes) -> Iterator[tuple[str, byte
     size = obj.size or len(present)
     for length in sorted({max(1, size - 1), size + 1, 5, 8} - {size}):
         yield f"{length} bytes", (present + bytes(8))[:length]
-    if obj.size is None or obj.data_type not in ep.TYPES:
+    if obj.size is None or obj.data_type not in oracle.TYPES:
         return
     if isinstance(obj.low, int) and obj.low > ep._type_range(obj)[0]:
         yield "LowLimit - 1", obj.encode(obj.low - 1)

@@ -25,12 +25,11 @@ from plant_sim.identification import (
 )
 from plant_sim.physics.model import KernelOptions
 from tests.command_line import exit_status
-from tests.paths import ROOT
 from virtual_bus.formats.axis import AxisConfig, load_axis
 from virtual_bus.formats.errors import AxisFileError
 from virtual_bus.formats.trace import Trace
+from virtual_bus.shipped import PAPER_AXIS
 
-PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
 TRUTH = {"mechanics.load_mass": 6554.2, "friction.coulomb": 1.2, "friction.viscous": 57.3}
 TOLERANCE = 0.02
 #: Data and model at the kernel's default step (the same for both).

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plant_sim.diagnosis.effects import MODELS, Effect
-from plant_sim.diagnosis.synthetic import Case, GeneratedCase
+from plant_sim.diagnosis.synthetic import Case, GeneratedCase, case_list
 from plant_sim.physics.simulate import References
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.trace import Trace
@@ -346,21 +346,11 @@ def process_load(level: float, n: int, cycle_s: float, rng: np.random.Generator)
 # cases
 # ----------------------------------------------------------------------------------------
 def test_set(seed: int = 1, duration_s: float = 25.0, none_per_family: int = 2) -> list[Case]:
-    """Every effect once per family and ``none_per_family`` recordings with nothing left out."""
-    cases: list[Case] = []
-    k = 0
-    for fam in FAMILIES.values():
-        for effect in fam.effects:
-            cases.append(
-                Case(f"{fam.name}-{effect.value}", fam.name, effect, seed * 1000 + k, duration_s)
-            )
-            k += 1
-        for i in range(none_per_family):
-            cases.append(
-                Case(f"{fam.name}-none-{i + 1}", fam.name, None, seed * 1000 + k, duration_s)
-            )
-            k += 1
-    return cases
+    """Every effect once per family and ``none_per_family`` recordings with nothing left out
+    (the bookkeeping of any plant's test set: :func:`plant_sim.diagnosis.synthetic.case_list`)."""
+    return case_list(
+        {f.name: f.effects for f in FAMILIES.values()}, seed, duration_s, none_per_family
+    )
 
 
 @dataclass(frozen=True)

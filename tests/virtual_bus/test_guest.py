@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.paths import ROOT
 from virtual_bus.__main__ import main
 from virtual_bus.guest import GuestConfig, boot_probe, guest_env, init_script, run_in_guest
 from virtual_bus.guest_kernel import (
@@ -32,8 +33,6 @@ from virtual_bus.guest_kernel import (
     module_order,
     require_tool,
 )
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -5,10 +5,7 @@ never come back, a datagram that is no frame is one CanOperationError (as python
 
 from __future__ import annotations
 
-import json
-import sys
-
-from virtual_bus.netns import NetworkNamespace
+from collections.abc import Callable
 
 INTEROP = r"""
 import json, socket, struct, time
@@ -79,11 +76,9 @@ print(json.dumps(out))
 
 
 def test_loopback_bus_speaks_python_cans_udp_multicast_format(
-    private_netns: NetworkNamespace, subprocess_env: dict[str, str]
+    netns_script: Callable[[str], dict],
 ) -> None:
-    done = private_netns.run([sys.executable, "-c", INTEROP], timeout_s=60, env=subprocess_env)
-    assert done.returncode == 0, done.stderr
-    out = json.loads(done.stdout.strip().splitlines()[-1])
+    out = netns_script(INTEROP)
     assert out["same_bytes_as_pack_message"] is True
     assert out["theirs_got"] == [0x1ABCDE01, True, 3, "010203"]
     assert out["ours_own_frame"] is True

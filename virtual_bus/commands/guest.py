@@ -29,15 +29,15 @@ from virtual_bus.progress import Progress
 
 NAME = "guest"
 HELP = "run a command in a User-mode Linux guest with SocketCAN vcan0 up (no SocketCAN needed here)"
+DESCRIPTION = (
+    "Boots a User-mode Linux kernel (linux.uml on PATH if it boots on this CPU, else the "
+    "one --fetch-kernel put in the cache) with this machine's files as its root, brings up "
+    "vcan0, runs COMMAND in the current directory with the current environment and exits "
+    "with its exit status. Guest problems: one line, exit 1."
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = (
-        "Boots a User-mode Linux kernel (linux.uml on PATH if it boots on this CPU, else the "
-        "one --fetch-kernel put in the cache) with this machine's files as its root, brings up "
-        "vcan0, runs COMMAND in the current directory with the current environment and exits "
-        "with its exit status. Guest problems: one line, exit 1."
-    )
     parser.add_argument(
         "--kernel", type=cli.existing_file, default=None, help="the UML kernel to boot"
     )

@@ -9,6 +9,7 @@ from virtual_bus.vcan import DEFAULT_VCAN_CHANNEL, check_ifname, run_ip, setup_v
 
 NAME = "setup"
 HELP = "create a vcan interface and bring it up (needs root and the vcan module)"
+DESCRIPTION = "Runs `ip link add dev NAME type vcan` and `ip link set up NAME`."
 
 
 def ifname(value: str) -> str:
@@ -20,7 +21,6 @@ def ifname(value: str) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.description = "Runs `ip link add dev NAME type vcan` and `ip link set up NAME`."
     parser.add_argument(
         "name",
         nargs="?",

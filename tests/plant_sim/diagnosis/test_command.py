@@ -254,10 +254,25 @@ def test_out_is_a_file_exit_2(
 
 
 def test_implausible_units_warn(
-    case_files: tuple[Path, Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    case_files: tuple[Path, Path, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """A motor_speed column in rpm is used as it is but warned about (one line); the run
-    goes on (here stopped early by a bad option on purpose would hide it, so run it short)."""
+    """A motor_speed column in rpm is used as it is but warned about (one line, once); the
+    run goes on (here stopped early by a bad option on purpose would hide it, so run it
+    short). The recording is checked against the axis file once: the command's check is the
+    one the diagnosis goes on from."""
+    from plant_sim.diagnosis import engine
+
+    calls: list[str] = []
+    real = engine.prepare_replay
+
+    def counted(*args: object, **kwargs: object) -> object:
+        calls.append(str(args[2] if len(args) > 2 else kwargs.get("source")))
+        return real(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(engine, "prepare_replay", counted)
     csv, toml, _ = case_files
     rec = read_trace(csv)
     rpm = tmp_path / "rpm.csv"
@@ -279,3 +294,5 @@ def test_implausible_units_warn(
     assert code == 0
     err = capsys.readouterr().err
     assert "warning:" in err and "rpm" in err
+    assert err.count("warning:") == 1, err
+    assert calls == [str(rpm)]

@@ -51,6 +51,12 @@ def test_fitted_model_beats_the_published_reference_on_both_recordings(
     if start == "nominal":
         # the nominal lacks friction at low speed: the evidence names a friction effect
         assert any(e.value.endswith("friction") for e in result.left_out), result.left_out
+    # the held-out gate: every effect the evidence named was scored on the held-out blocks,
+    # kept exactly when the model with it predicts them better by the least improvement
+    gate = result.closed_loop.gate
+    assert [g.effect for g in gate] == list(result.evidence.named)
+    assert all(g.kept == (g.gain >= result.options.min_improvement) for g in gate), gate
+    assert len(result.left_out) == sum(g.kept for g in gate)
     reference = load_axis(CONFIG / "emps_reference.toml")
     for trace in (estimation, validation):
         fitted_error = relative_force_error(result.fitted, trace).percent

@@ -29,8 +29,8 @@ from plant_sim.fleet.sources import RecordingKind, Source, discover, load_axis_m
 from tests.paths import ROOT
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.formats.trace import Trace
+from virtual_bus.shipped import PAPER_AXIS
 
-PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
 KV = 25.0  # paper axis
 KR = 100 * math.pi
 
