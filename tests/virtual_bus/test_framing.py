@@ -270,14 +270,10 @@ print(json.dumps(out))
 
 
 def test_the_udp_port_tells_same_size_frames_of_templates_apart(
-    private_netns: NetworkNamespace, subprocess_env: dict[str, str]
+    netns_script: Callable[[str], dict],
 ) -> None:
     """Frames sent from templates (timestamp 0.0: recognised by their bytes after the first)
     of one size and different COB-IDs and senders, in random order: every one is read with
     its own COB-ID and payload, as python-can's ``unpack_message`` reads the datagram."""
-    done = private_netns.run(
-        [sys.executable, "-c", TEMPLATES_SCRIPT], timeout_s=60, env=subprocess_env
-    )
-    assert done.returncode == 0, done.stderr
-    out = json.loads(done.stdout.strip().splitlines()[-1])
+    out = netns_script(TEMPLATES_SCRIPT)
     assert out == {"count": 30, "mismatches": [], "nothing_left": True}
