@@ -277,7 +277,16 @@ class SocketCanPort(_SocketPort):
         self._channel = getattr(bus, "channel", None)
 
     def receive(self, timeout_s: float | None, due: bool = False) -> int:
-        if not self._read(timeout_s):
+        size = -1
+        if due and timeout_s != 0.0:  # read it if it is there (see UdpPort.receive)
+            read_now = self._read_now
+            try:
+                size = read_now()
+            except BlockingIOError:
+                size = -1
+        if size >= 0:
+            self.size = size
+        elif not self._read(timeout_s):
             return NOTHING
         buf = self.buffer
         (can_id,) = _CAN_ID_UNPACK(buf)  # host byte order
