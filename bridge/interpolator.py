@@ -148,6 +148,7 @@ class Interpolator:
         self._table: Table | None = None
         self._positions: list[float] = []  # the running table's samples as Python floats
         self._speeds: list[float] = []
+        self._table_end = 0
         self._j = 0  # samples of the running item so far
         self._dwell_left = 0
         self._next = self.position
@@ -181,21 +182,22 @@ class Interpolator:
             # Python floats, read one a cycle (a numpy element costs a numpy scalar each)
             self._positions = item.position.tolist()
             self._speeds = item.speed.tolist()
+            self._table_end = len(self._positions)
             return
         self._profile = _Profile(item, self._next)
         self._dwell_left = round(item.dwell_s / self.cycle_s)
 
     def step(self) -> None:
         """Advance one cycle: sample k of the reference and the speed over the coming cycle."""
-        if self._profile is None and self._table is None and self._queue and not self._dwell_left:
+        if self._table is None and self._profile is None and self._queue and not self._dwell_left:
             self._start_next()
         if self._table is not None:
+            # _next (where a move starts) matters only once the table is over: set then
             j = self._j
             self.position = position = self._positions[j]
-            self.speed = speed = self._speeds[j]
+            self.speed = self._speeds[j]
             self._j = j = j + 1
-            self._next = position + speed * self.cycle_s
-            if j >= len(self._positions):
+            if j >= self._table_end:
                 self._table = None
                 self._next = position
             return

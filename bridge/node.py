@@ -305,6 +305,8 @@ class Bridge:
         self._tpdo_ids = layout.can_ids
         self._tpdo_dlc = tuple(f.dlc for f in layout.frames)
         self._slot_of = {cid: i for i, cid in enumerate(self._tpdo_ids)}
+        #: COB-ID -> (bit, length, slot) of each TPDO of the layout (the loop's window)
+        self._tpdos = {f.can_id: (1 << i, f.dlc, i) for i, f in enumerate(layout.frames)}
         self._lengths = self._fixed_lengths | {f.can_id: f.dlc for f in layout.frames}
         if self._encoder_heartbeat >= 0:
             self._lengths[self._encoder_heartbeat] = HEARTBEAT_LENGTH
@@ -510,10 +512,15 @@ class Bridge:
         poll = self._poll
         take = self._take
         if due is None:
+            receive = self.frames.receive
             while True:
                 while service:
                     self._serve_one()
-                cob_id = poll(0.0)
+                try:  # _poll(0.0) without the call
+                    cob_id = receive(0.0)
+                except (can.CanError, OSError) as exc:
+                    self._receive_failed(exc)
+                    break
                 if cob_id == NOTHING:
                     break
                 take(cob_id)
@@ -633,8 +640,9 @@ class Bridge:
             self._sync_wall = sync_wall
             cpu_sync = self._cpu()
         frames = self.frames
+        send = self._sync_frame.send  # from a local: see UdpPort.receive
         try:
-            frames.send(self._sync_frame)
+            send()
         except (can.CanError, OSError) as exc:
             self._send_failed(self._sync_frame, exc)
         if self.peer_poll is not None:
@@ -645,42 +653,48 @@ class Bridge:
         if keep:
             cpu_window = self._cpu()
         receive = frames.receive
-        slot_of = self._slot_of
-        dlc = self._tpdo_dlc
+        tpdos = self._tpdos
         decoders = self.controller.decoders
-        guard = self.guard
         busy_poll = self.busy_poll
         full = self._all_slots
         # until all TPDOs are in or the window is over; frames already received when it is
         # over still count (the loop may have been preempted while they were waiting), at
         # most LATE_READ_FRAMES of them (a flood of frames cannot hold the cycle)
         late_reads = LATE_READ_FRAMES
-        while self._present != full:
+        present = accepted = extra = 0  # in locals while the window is open: fewer bytecodes
+        while present != full:
             remaining = end - wall()
             if remaining <= 0.0:
                 late_reads -= 1
                 if late_reads < 0:
                     break
             try:
-                cob_id = receive(remaining if remaining > 0.0 and not busy_poll else 0.0)
+                cob_id = receive(remaining if remaining > 0.0 and not busy_poll else 0.0, True)
             except (can.CanError, OSError) as exc:
                 self._receive_failed(exc)
                 cob_id = NOTHING
-            if cob_id >= 0:
-                slot = slot_of.get(cob_id)
-                if slot is not None and frames.length == dlc[slot]:
+            tpdo = tpdos.get(cob_id)  # (bit, length, slot) of a TPDO of the layout
+            if tpdo is not None:
+                bit, length, slot = tpdo
+                if frames.length == length:
                     # _take and _tpdo for a TPDO in its window, without the two calls
-                    guard.accepted += 1
-                    bit = 1 << slot
-                    if self._present & bit:
-                        self.counters.late += 1  # an extra frame: the newest one is used
-                    self._present |= bit
+                    accepted += 1
+                    if present & bit:
+                        extra += 1  # an extra frame: the newest one is used
+                    present |= bit
                     decoders[slot](frames.buffer, frames.offset)
                     continue
             if cob_id != NOTHING:
-                self._take(cob_id)
+                self._present = present
+                self._take(cob_id)  # may decode a TPDO (_tpdo)
+                present = self._present
             elif remaining <= 0.0:
                 break
+        self._present = present
+        if accepted:
+            self.guard.accepted += accepted
+            if extra:
+                self.counters.late += extra
         self._window_open = False
         inputs_wall = wall()
         if keep:
@@ -688,7 +702,6 @@ class Bridge:
             self._waited = min(inputs_wall, end) - sync_wall
         counters = self.counters
         counters.cycles += 1
-        present = self._present
         if present != full:
             counters.missed_cycles += 1
             counters.missed += (full & ~present).bit_count()
@@ -699,8 +712,9 @@ class Bridge:
             timing.errors += 1
             log.exception("controller step failed")
             self.controller.stop(StopReason.INTERNAL_ERROR, f"controller step failed: {exc!r}")
+        send = self._rpdo_frame.send
         try:
-            frames.send(self._rpdo_frame)
+            send()
         except (can.CanError, OSError) as exc:
             self._send_failed(self._rpdo_frame, exc)
         if keep:

@@ -3,6 +3,7 @@ machine, unlike its clock). Developer tool, not part of the packages.
 
     python tools/lockstep_instructions.py [--path lockstep|bridge|drive] [--bus virtual|udp|vcan]
                                           [--cycles 2000] [--record] [--python] [--cpu-time]
+                                          [--keep FILE]
 
 runs itself under ``valgrind --tool=callgrind --collect-atstart=no
 --toggle-collect=functools_reduce --toggle-collect=_operator_call`` on the paper's section
@@ -271,17 +272,21 @@ class _StubBridge:
     count."""
 
     def __init__(self) -> None:
-        self.cycle_index = WARM_UP_CYCLES
+        self._k = WARM_UP_CYCLES
         self.before_sync: Callable[[int], None] | None = None
         self.peer_poll: Callable[[], int] | None = lambda: 1
 
+    @property
+    def cycle_index(self) -> int:  # a property, as the bridge's, which the wrappers read
+        return self._k
+
     def run_cycle(self) -> None:
-        k = self.cycle_index
+        k = self._k
         if self.before_sync is not None:
             self.before_sync(k)
         if self.peer_poll is not None:
             self.peer_poll()
-        self.cycle_index = k + 1
+        self._k = k + 1
 
 
 def _harness(args: argparse.Namespace) -> None:
@@ -343,6 +348,9 @@ def _count(args: argparse.Namespace, harness: bool = False) -> tuple[int, str] |
     with contextlib.ExitStack() as stack:
         tmp = stack.enter_context(tempfile.TemporaryDirectory())
         out = Path(tmp) / "callgrind.out"
+        if args.keep is not None:  # for callgrind_annotate
+            keep = args.keep.resolve()
+            out = keep.with_name(keep.name + (".harness" if harness else ""))
         command = _command(args, out, harness)
         if args.bus == "udp" and not harness:
             sys.path.insert(0, str(ROOT))
@@ -370,6 +378,13 @@ def main(argv: list[str]) -> int:
         "--cpu-time",
         action="store_true",
         help="the thread's CPU time of the same sections, without valgrind (µs per cycle)",
+    )
+    parser.add_argument(
+        "--keep",
+        type=Path,
+        metavar="FILE",
+        help="keep callgrind's output in FILE (the harness's run in FILE.harness), "
+        "for callgrind_annotate",
     )
     parser.add_argument("--inner", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--harness", action="store_true", help=argparse.SUPPRESS)

@@ -61,6 +61,9 @@ TIMESTAMP_END = len(HEAD) + 8
 _ID_KEY = b"\xaearbitration_id"
 _ID_AT = TIMESTAMP_END
 _VALUE_AT = _ID_AT + len(_ID_KEY)
+#: Where a plain frame's COB-ID above 0x7F has its byte(s) (after msgpack's type byte): two
+#: bytes there tell most kinds of frame of one size apart (virtual_bus.framing.UdpPort).
+KIND_AT = _VALUE_AT + 1
 _PLAIN_FLAGS = b"\xaeis_extended_id\xc2\xafis_remote_frame\xc2\xaeis_error_frame\xc2\xa7channel"
 _CHANNEL_KEY_SIZE = 8  # "\xa7channel"
 _DLC_KEY = b"\xa3dlc"

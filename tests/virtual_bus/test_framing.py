@@ -221,3 +221,59 @@ def test_the_socketcan_port_against_python_cans_socketcan_bus() -> None:
     finally:
         ours.shutdown()
         theirs.shutdown()
+
+
+TEMPLATES_SCRIPT = r"""
+import json, random
+
+from can.interfaces.udp_multicast.utils import unpack_message
+
+from virtual_bus.framing import frame_port
+from virtual_bus.netns import UDP_GROUP
+from virtual_bus.udp import LoopbackUdpBus
+
+ours = LoopbackUdpBus(UDP_GROUP)
+port = frame_port(ours)
+senders = [LoopbackUdpBus(UDP_GROUP), LoopbackUdpBus(UDP_GROUP)]
+sending = [frame_port(bus) for bus in senders]
+# frames of one size: COB-IDs told apart by their bytes (0x182 / 0x282 / 0x082), and kinds
+# that share the recogniser's place (0x005 / 0x006: one-byte COB-IDs; 0x182 from a second
+# sender), which are parsed every time
+kinds = [(0, 0x182), (0, 0x282), (0, 0x082), (0, 0x005), (0, 0x006), (1, 0x182)]
+frames = [sending[s].frame(cob_id, 8) for s, cob_id in kinds]
+rng = random.Random(19)
+mismatches = []
+count = 0
+try:
+    for _ in range(5):
+        order = list(range(len(kinds)))
+        rng.shuffle(order)
+        for i in order:
+            frame = frames[i]
+            payload = bytes(rng.randrange(256) for _ in range(8))
+            frame.buffer[frame.offset : frame.offset + 8] = payload
+            frame.send()
+            cob_id = port.receive(5.0)
+            oracle = unpack_message(bytes(port.buffer[: port.size]))
+            got = [cob_id, bytes(port.buffer[port.offset : port.offset + port.length]).hex()]
+            want = [kinds[i][1], payload.hex()]
+            if got != want or [oracle.arbitration_id, oracle.data.hex()] != want:
+                mismatches.append([got, want])
+            count += 1
+    out = {"count": count, "mismatches": mismatches, "nothing_left": port.receive(0.05) < -1}
+finally:
+    ours.shutdown()
+    for bus in senders:
+        bus.shutdown()
+print(json.dumps(out))
+"""
+
+
+def test_the_udp_port_tells_same_size_frames_of_templates_apart(
+    netns_script: Callable[[str], dict],
+) -> None:
+    """Frames sent from templates (timestamp 0.0: recognised by their bytes after the first)
+    of one size and different COB-IDs and senders, in random order: every one is read with
+    its own COB-ID and payload, as python-can's ``unpack_message`` reads the datagram."""
+    out = netns_script(TEMPLATES_SCRIPT)
+    assert out == {"count": 30, "mismatches": [], "nothing_left": True}
