@@ -178,20 +178,6 @@ FORMAT_RANGE: dict[str, tuple[float, float]] = {
 }
 
 
-def parameter_for(
-    key: str,
-    value: float,
-    scales: DataScales,
-    nominal: AxisConfig,
-    axis: AxisConfig,
-) -> Parameter:
-    """Bounds and scale of one fitted key around its current ``value``; the nominal axis
-    anchors the relative bounds of mass, antiresonance and damping (a data sheet is within a
-    factor 2), the recording the absolute ones of torques and speeds; never beyond the
-    format's range of the key (:data:`FORMAT_RANGE`)."""
-    return within_format(_parameter_for(key, value, scales, nominal, axis))
-
-
 def within_format(p: Parameter) -> Parameter:
     """``p`` with its bounds cut to the format's range of its key (:data:`FORMAT_RANGE`)."""
     if p.key not in FORMAT_RANGE:
@@ -206,13 +192,17 @@ def within_format(p: Parameter) -> Parameter:
     return replace(p, low=low, high=high, scale=p.scale if p.log else min(p.scale, high - low))
 
 
-def _parameter_for(
+def parameter_for(
     key: str,
     value: float,
     scales: DataScales,
     nominal: AxisConfig,
     axis: AxisConfig,
 ) -> Parameter:
+    """Bounds and scale of one fitted key around its current ``value``; the nominal axis
+    anchors the relative bounds of mass, antiresonance and damping (a data sheet is within a
+    factor 2), the recording the absolute ones of torques and speeds. The fit cuts them to
+    the format's range of the key (:func:`within_format`)."""
     tp, vmax = scales.torque_peak, scales.speed_max
     ref = nominal.value(key) if key.startswith("mechanics.") else None
     if key == "mechanics.load_mass":

@@ -41,7 +41,7 @@ from virtual_bus.formats.axis import (
     Mechanics,
     PositionFeedback,
 )
-from virtual_bus.formats.trace import Trace
+from virtual_bus.formats.trace import MOTION_COLUMNS, Trace
 
 from ..physics.model import KernelOptions, default_substeps
 from ..physics.simulate import References, simulate
@@ -424,15 +424,7 @@ def hidden_axes(case: Case, refs: References, plant: Simulator) -> tuple[AxisCon
 def recorded_columns(sim: Trace) -> dict[str, np.ndarray]:
     """The columns a recording keeps, every :data:`DECIMATION`-th position cycle."""
     keep = slice(0, None, DECIMATION)
-    names = (
-        "time",
-        "position_reference",
-        "motor_position",
-        "load_position",
-        "motor_speed",
-        "motor_torque",
-    )
-    return {name: sim[name][keep] for name in names}
+    return {name: sim[name][keep] for name in MOTION_COLUMNS}
 
 
 def family_of(case: Case) -> Family:

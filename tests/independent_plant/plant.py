@@ -13,21 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from virtual_bus.formats.axis import AxisConfig, AxisKind, PositionFeedback
-from virtual_bus.formats.trace import Trace
+from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace
 
 from . import core as C
 
 #: Columns of :func:`simulate`'s trace (trace-file names).
-COLUMNS = (
-    "time",
-    "position_reference",
-    "speed_setpoint",
-    "motor_position",
-    "motor_speed",
-    "load_position",
-    "motor_torque",
-    "disturbance",
-)
+COLUMNS = (*RECORDED_COLUMNS, "disturbance")
 
 
 @dataclass(frozen=True)

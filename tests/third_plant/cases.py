@@ -37,7 +37,7 @@ from plant_sim.diagnosis.effects import MODELS, Effect
 from plant_sim.diagnosis.synthetic import Case, GeneratedCase, case_list
 from plant_sim.physics.simulate import References
 from virtual_bus.formats.axis import AxisConfig
-from virtual_bus.formats.trace import Trace
+from virtual_bus.formats.trace import MOTION_COLUMNS, Trace
 
 from .plant import Physics, axis_of, simulate
 
@@ -74,33 +74,53 @@ class Family:
     effects: dict[Effect, Callable[[Physics], Physics]] = field(default_factory=dict)
 
 
+def _drive_train(
+    kr: float, jm: float, js: float, mass: float, coupling_hz: float, kn: float, zeta_kn_wa: float
+) -> dict[str, float]:
+    """Motor, coupling (2 % damped, at ``coupling_hz`` against the reduced inertia), screw,
+    nut (stiffness ``kn``, damping 2·ζ·kn/ω_a given as ``zeta_kn_wa`` = ζ·kn/ω_a) and load."""
+    jred = 1.0 / (1.0 / jm + 1.0 / js)
+    kc = (2.0 * math.pi * coupling_hz) ** 2 * jred
+    return {
+        "transmission_ratio": kr,
+        "motor_inertia": jm,
+        "screw_inertia": js,
+        "coupling_stiffness": kc,
+        "coupling_damping": 2.0 * 0.02 * math.sqrt(kc * jred),
+        "load_mass": mass,
+        "nut_stiffness": kn,
+        "nut_damping": 2.0 * zeta_kn_wa,
+        "backlash": 0.0,
+    }
+
+
+def _lugre(
+    coulomb: float, stribeck_speed: float, sig0: float, mass: float, viscous: float
+) -> dict[str, float]:
+    """Symmetric LuGre friction without a Stribeck peak (static = Coulomb), bristle damping
+    0.2·sqrt(σ0·m)."""
+    return {
+        "coulomb_pos": coulomb,
+        "coulomb_neg": coulomb,
+        "static_pos": coulomb,
+        "static_neg": coulomb,
+        "stribeck_speed": stribeck_speed,
+        "bristle_stiffness": sig0,
+        "bristle_damping": 0.2 * math.sqrt(sig0 * mass),
+        "viscous_pos": viscous,
+        "viscous_neg": viscous,
+    }
+
+
 def _rotary() -> Family:
     kr, jm, js, mass = 90.0, 1.2e-3, 4.0e-4, 3.0
-    jred = 1.0 / (1.0 / jm + 1.0 / js)
-    kc = (2.0 * math.pi * 900.0) ** 2 * jred
     wa = 2.0 * math.pi * 55.0
     kn = mass * wa**2
     sig0 = 9.0 / 5e-5
     base = Physics(
         kind="rotary",
-        transmission_ratio=kr,
-        motor_inertia=jm,
-        screw_inertia=js,
-        coupling_stiffness=kc,
-        coupling_damping=2.0 * 0.02 * math.sqrt(kc * jred),
-        load_mass=mass,
-        nut_stiffness=kn,
-        nut_damping=2.0 * 0.05 * kn / wa,
-        backlash=0.0,
-        coulomb_pos=9.0,
-        coulomb_neg=9.0,
-        static_pos=9.0,
-        static_neg=9.0,
-        stribeck_speed=0.02,
-        bristle_stiffness=sig0,
-        bristle_damping=0.2 * math.sqrt(sig0 * mass),
-        viscous_pos=25.0,
-        viscous_neg=25.0,
+        **_drive_train(kr, jm, js, mass, 900.0, kn, 0.05 * kn / wa),
+        **_lugre(9.0, 0.02, sig0, mass, 25.0),
         load_force=0.0,
         periodic_force=0.0,
         periodic_period=2.0 * math.pi / 40.0,
@@ -155,31 +175,13 @@ def _rotary() -> Family:
 
 def _vertical() -> Family:
     kr, jm, js, mass = 2.0 * math.pi / 0.016, 6.0e-4, 2.5e-4, 60.0
-    jred = 1.0 / (1.0 / jm + 1.0 / js)
-    kc = (2.0 * math.pi * 1100.0) ** 2 * jred
     kn = 1.2e8
     wa = math.sqrt(kn / mass)
     sig0 = 70.0 / 1e-6
     base = Physics(
         kind="linear",
-        transmission_ratio=kr,
-        motor_inertia=jm,
-        screw_inertia=js,
-        coupling_stiffness=kc,
-        coupling_damping=2.0 * 0.02 * math.sqrt(kc * jred),
-        load_mass=mass,
-        nut_stiffness=kn,
-        nut_damping=2.0 * 0.06 * kn / wa,
-        backlash=0.0,
-        coulomb_pos=70.0,
-        coulomb_neg=70.0,
-        static_pos=70.0,
-        static_neg=70.0,
-        stribeck_speed=0.005,
-        bristle_stiffness=sig0,
-        bristle_damping=0.2 * math.sqrt(sig0 * mass),
-        viscous_pos=400.0,
-        viscous_neg=400.0,
+        **_drive_train(kr, jm, js, mass, 1100.0, kn, 0.06 * kn / wa),
+        **_lugre(70.0, 0.005, sig0, mass, 400.0),
         load_force=35.0,
         periodic_force=0.0,
         periodic_period=0.016,
@@ -411,17 +413,7 @@ def _perturbed(axis: AxisConfig, rng: np.random.Generator) -> AxisConfig:
 
 def _recorded(sim: Trace, noise: NoiseLevels, rng: np.random.Generator) -> dict[str, np.ndarray]:
     n = len(sim)
-    cols = {
-        name: sim[name].copy()
-        for name in (
-            "time",
-            "position_reference",
-            "motor_position",
-            "load_position",
-            "motor_speed",
-            "motor_torque",
-        )
-    }
+    cols = {name: sim[name].copy() for name in MOTION_COLUMNS}
     tq = cols["motor_torque"] + noise.torque * rng.standard_normal(n)
     cols["motor_torque"] = np.round(tq / noise.torque_quantum) * noise.torque_quantum
     cols["motor_speed"] = cols["motor_speed"] + noise.speed * rng.standard_normal(n)

@@ -19,21 +19,12 @@ from virtual_bus.formats.axis import (
     Mechanics,
     PositionFeedback,
 )
-from virtual_bus.formats.trace import Trace
+from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace
 
 from . import physics as P
 
 #: Columns of :func:`simulate`'s trace (trace-file names).
-COLUMNS = (
-    "time",
-    "position_reference",
-    "speed_setpoint",
-    "motor_position",
-    "motor_speed",
-    "load_position",
-    "motor_torque",
-    "disturbance",
-)
+COLUMNS = (*RECORDED_COLUMNS, "disturbance")
 
 #: Largest ω·h of the mechanics step.
 MAX_OMEGA_H = 0.05

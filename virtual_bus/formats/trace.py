@@ -53,6 +53,16 @@ COLUMN_UNITS = {
 COLUMN_ORDER = tuple(COLUMN_UNITS)
 #: The spec's measured columns, in that order: what a recorder on a real axis writes.
 RECORDED_COLUMNS = COLUMN_ORDER[:7]
+#: What a recording of the motion holds without the drive's internals: the time, the
+#: reference, both measuring systems, the motor speed and torque.
+MOTION_COLUMNS = (
+    "time",
+    "position_reference",
+    "motor_position",
+    "load_position",
+    "motor_speed",
+    "motor_torque",
+)
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ from virtual_bus.formats.axis import (
     dump_axis,
 )
 from virtual_bus.formats.errors import AxisFileError
-from virtual_bus.formats.trace import Trace
+from virtual_bus.formats.trace import MOTION_COLUMNS, Trace
 
 #: Axis files drawn (``DIAG_FUZZ_AXES`` for a longer run: docs/diagnosis.md used 150).
 N_AXES = int(os.environ.get("DIAG_FUZZ_AXES", "24"))
@@ -120,17 +120,7 @@ def recording_of(axis: AxisConfig, rng: np.random.Generator, seconds: float = 5.
         sim = simulate(axis, refs, None, KernelOptions())
     except PlantSimError:
         return None
-    cols = {
-        c: sim[c]
-        for c in (
-            "time",
-            "position_reference",
-            "motor_position",
-            "motor_speed",
-            "motor_torque",
-            "load_position",
-        )
-    }
+    cols = {c: sim[c] for c in MOTION_COLUMNS}
     if not all(np.all(np.isfinite(v)) and np.max(np.abs(v)) < 1e12 for v in cols.values()):
         return None
     tau = cols["motor_torque"]

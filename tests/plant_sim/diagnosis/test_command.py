@@ -29,28 +29,20 @@ def case_files(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Pa
     return csv, toml, d / "second.csv"
 
 
+def _diagnose(csv: Path, toml: Path, out: Path, *options: str) -> int:
+    """``plant_sim diagnose CSV --axis TOML --out OUT --no-progress OPTIONS``."""
+    files = [str(csv), "--axis", str(toml), "--out", str(out)]
+    return main(["diagnose", *files, "--no-progress", *options])
+
+
 @pytest.fixture(scope="module")
 def report_dir(
     case_files: tuple[Path, Path, Path], tmp_path_factory: pytest.TempPathFactory
 ) -> Path:
     csv, toml, _ = case_files
     out = tmp_path_factory.mktemp("out") / "report"
-    code = main(
-        [
-            "diagnose",
-            str(csv),
-            "--axis",
-            str(toml),
-            "--out",
-            str(out),
-            "--no-progress",
-            "--effects",
-            "constant_load_torque",
-            "asymmetric_friction",
-            "backlash",
-        ]
-    )
-    assert code == 0
+    effects = ("constant_load_torque", "asymmetric_friction", "backlash")
+    assert _diagnose(csv, toml, out, "--effects", *effects) == 0
     return out
 
 
@@ -130,23 +122,9 @@ def test_validate_with_a_second_recording(
 ) -> None:
     csv, toml, second = case_files
     out = tmp_path / "rep"
-    code = main(
-        [
-            "diagnose",
-            str(csv),
-            "--axis",
-            str(toml),
-            "--out",
-            str(out),
-            "--no-progress",
-            "--validate",
-            str(second),
-            str(second.parent / "third.csv"),
-            "--effects",
-            "constant_load_torque",
-            "backlash",
-        ]
-    )
+    validate = (str(second), str(second.parent / "third.csv"))
+    effects = ("constant_load_torque", "backlash")
+    code = _diagnose(csv, toml, out, "--validate", *validate, "--effects", *effects)
     assert code == 0
     report = json.loads((out / "report.json").read_text())
     assert report["recording"]["validation"] == "2 second recording(s)"

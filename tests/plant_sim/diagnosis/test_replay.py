@@ -23,7 +23,7 @@ from virtual_bus.formats.axis import (
     PositionFeedback,
 )
 from virtual_bus.formats.errors import TraceWarning
-from virtual_bus.formats.trace import Trace
+from virtual_bus.formats.trace import MOTION_COLUMNS, Trace
 
 
 def small_axis(feedback: PositionFeedback = PositionFeedback.MOTOR) -> AxisConfig:
@@ -50,15 +50,7 @@ def recorded(axis: AxisConfig, n: int = 3000, every: int = 1) -> Trace:
         move(n, axis.control.position_cycle), axis.control.position_cycle
     )
     sim = simulate(axis, refs, options=KernelOptions(substeps=2))
-    cols = (
-        "time",
-        "position_reference",
-        "motor_position",
-        "load_position",
-        "motor_speed",
-        "motor_torque",
-    )
-    return Trace({c: sim[c][::every] for c in cols})
+    return Trace({c: sim[c][::every] for c in MOTION_COLUMNS})
 
 
 def test_replay_reproduces_the_simulator_on_its_own_time_base() -> None:
