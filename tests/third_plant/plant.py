@@ -10,15 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from virtual_bus.formats.axis import (
-    AxisConfig,
-    AxisKind,
-    Control,
-    Disturbance,
-    Friction,
-    Mechanics,
-    PositionFeedback,
-)
+from virtual_bus.formats.axis import AxisConfig, axis_from_mapping
 from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace
 
 from . import physics as P
@@ -187,30 +179,33 @@ def axis_of(ph: Physics) -> AxisConfig:
         dist["periodic_amplitude"] = ph.periodic_force / kr
         dist["periodic_period"] = ph.periodic_period
         dist["periodic_phase"] = ph.periodic_phase
-    return AxisConfig(
-        kind=AxisKind(ph.kind),
-        transmission_ratio=kr,
-        mechanics=Mechanics(
-            motor_inertia=ph.motor_inertia,
-            screw_inertia=ph.screw_inertia,
-            load_mass=ph.load_mass,
-            antiresonance=wa,
-            damping_ratio=xi,
-            backlash=ph.backlash if ph.backlash > 0.0 else None,
-        ),
-        friction=Friction(**friction),  # type: ignore[arg-type]
-        disturbance=Disturbance(**dist),  # type: ignore[arg-type]
-        control=Control(
-            kv=ph.kv,
-            ksp=ph.ksp,
-            tsi=ph.tsi,
-            position_feedback=PositionFeedback.LOAD if ph.load_feedback else PositionFeedback.MOTOR,
-            torque_limit=ph.torque_limit if math.isfinite(ph.torque_limit) else None,
-            current_lag=ph.current_lag,
-            delay=ph.setpoint_delay_cycles * ph.position_cycle or None,
-            position_cycle=ph.position_cycle,
-            speed_cycle=ph.speed_cycle,
-            speed_filter=ph.speed_filter or None,
-            sensor_time_offset=ph.sensor_offset or None,
-        ),
+    doc = {
+        "axis": {"kind": ph.kind, "transmission_ratio": kr},
+        "mechanics": {
+            "motor_inertia": ph.motor_inertia,
+            "screw_inertia": ph.screw_inertia,
+            "load_inertia" if ph.kind == "rotary" else "load_mass": ph.load_mass,
+            "antiresonance": wa,
+            "damping_ratio": xi,
+            "backlash": ph.backlash if ph.backlash > 0.0 else None,
+        },
+        "friction": friction,
+        "disturbance": dist,
+        "control": {
+            "kv": ph.kv,
+            "ksp": ph.ksp,
+            "tsi": ph.tsi,
+            "position_feedback": "load" if ph.load_feedback else "motor",
+            "torque_limit": ph.torque_limit if math.isfinite(ph.torque_limit) else None,
+            "current_lag": ph.current_lag,
+            "delay": ph.setpoint_delay_cycles * ph.position_cycle or None,
+            "position_cycle": ph.position_cycle,
+            "speed_cycle": ph.speed_cycle,
+            "speed_filter": ph.speed_filter or None,
+            "sensor_time_offset": ph.sensor_offset or None,
+        },
+    }
+    # as a user writes the file: a key without a value is left out
+    return axis_from_mapping(
+        {name: {k: v for k, v in table.items() if v is not None} for name, table in doc.items()}
     )

@@ -18,16 +18,7 @@ from plant_sim.diagnosis import DiagnosisOptions, diagnose
 from plant_sim.errors import PlantSimError
 from plant_sim.physics.model import KernelOptions
 from plant_sim.physics.simulate import References, simulate
-from virtual_bus.formats.axis import (
-    AxisConfig,
-    AxisKind,
-    Control,
-    Disturbance,
-    Friction,
-    Mechanics,
-    PositionFeedback,
-    dump_axis,
-)
+from virtual_bus.formats.axis import AxisConfig, AxisKind, axis_from_mapping, dump_axis
 from virtual_bus.formats.errors import AxisFileError
 from virtual_bus.formats.trace import MOTION_COLUMNS, Trace
 
@@ -40,26 +31,27 @@ def _maybe(rng: np.random.Generator, p: float, value: float) -> float | None:
 
 
 def random_axis(rng: np.random.Generator) -> AxisConfig:
-    """A random axis within the format's rules and a stable loop (speed-loop bandwidth a
-    few times k_v, below the speed cycle's Nyquist rate)."""
-    kind = AxisKind.ROTARY if rng.random() < 0.4 else AxisKind.LINEAR
+    """A random axis file within the format's rules and a stable loop (speed-loop bandwidth
+    a few times k_v, below the speed cycle's Nyquist rate), read by the format's own loader
+    from the mapping a TOML file gives."""
+    kind = "rotary" if rng.random() < 0.4 else "linear"
     kr = float(np.exp(rng.uniform(0.0, math.log(800.0))))
     lumped = rng.random() < 0.25
     jm = 0.0 if lumped else float(np.exp(rng.uniform(math.log(1e-5), math.log(1e-2))))
     js = 0.0 if lumped or rng.random() < 0.5 else float(jm * rng.uniform(0.1, 2.0))
     j_load = float(np.exp(rng.uniform(math.log(0.01), math.log(2000.0))))
-    if kind is AxisKind.LINEAR:
+    if kind == "linear":
         j_load = max(j_load, 1e-3)
     elastic = not lumped and rng.random() < 0.5
     wa = float(rng.uniform(150.0, 2000.0)) if elastic else None
-    mech = Mechanics(
-        motor_inertia=jm,
-        screw_inertia=js,
-        load_mass=j_load,
-        antiresonance=wa,
-        damping_ratio=float(rng.uniform(0.02, 0.3)) if elastic else None,
-        backlash=_maybe(rng, 0.3, float(rng.uniform(1e-6, 1e-4))) if elastic else None,
-    )
+    mech = {
+        "motor_inertia": jm,
+        "screw_inertia": js,
+        "load_inertia" if kind == "rotary" else "load_mass": j_load,
+        "antiresonance": wa,
+        "damping_ratio": float(rng.uniform(0.02, 0.3)) if elastic else None,
+        "backlash": _maybe(rng, 0.3, float(rng.uniform(1e-6, 1e-4))) if elastic else None,
+    }
     speed_cycle = float(rng.choice([1.25e-4, 2.5e-4, 5e-4, 1e-3]))
     position_cycle = speed_cycle * int(rng.choice([1, 2, 4, 8]))
     position_cycle = min(position_cycle, 0.004)
@@ -69,42 +61,48 @@ def random_axis(rng: np.random.Generator) -> AxisConfig:
     bandwidth = min(float(rng.uniform(4.0, 10.0)) * kv, 0.15 / speed_cycle)
     torque_scale = j_total * bandwidth
     coulomb = _maybe(rng, 0.7, float(rng.uniform(0.001, 0.05)) * torque_scale * 100.0)
-    fr = Friction(
-        coulomb=coulomb,
-        viscous=_maybe(rng, 0.7, float(rng.uniform(0.0, 0.5)) * torque_scale * kr),
-        coulomb_negative=_maybe(rng, 0.2, (coulomb or 0.0) * 1.2),
-        creep_speed=_maybe(rng, 0.2, 1e-4),
-    )
+    friction = {
+        "coulomb": coulomb,
+        "viscous": _maybe(rng, 0.7, float(rng.uniform(0.0, 0.5)) * torque_scale * kr),
+        "coulomb_negative": _maybe(rng, 0.2, (coulomb or 0.0) * 1.2),
+        "creep_speed": _maybe(rng, 0.2, 1e-4),
+    }
     if rng.random() < 0.2:
-        fr = Friction(**{**vars(fr), "stribeck": 0.5 * (coulomb or 0.01), "stribeck_speed": 0.01})
-    dist = Disturbance(
-        constant_torque=_maybe(
-            rng, 0.3, float(rng.uniform(-1.0, 1.0)) * 0.02 * torque_scale * 100.0
-        ),
-    )
+        friction |= {"stribeck": 0.5 * (coulomb or 0.01), "stribeck_speed": 0.01}
+    constant = _maybe(rng, 0.3, float(rng.uniform(-1.0, 1.0)) * 0.02 * torque_scale * 100.0)
+    disturbance: dict[str, float | None] = {"constant_torque": constant}
     if rng.random() < 0.2:
-        dist = Disturbance(
-            constant_torque=dist.constant_torque,
-            periodic_amplitude=0.01 * torque_scale * 100.0,
-            periodic_period=0.05 if kind is AxisKind.LINEAR else 0.5,
-            periodic_phase=0.3,
-        )
-    feedback = PositionFeedback.LOAD if rng.random() < 0.4 else PositionFeedback.MOTOR
-    control = Control(
-        kv=kv,
-        ksp=bandwidth * j_total,
-        position_feedback=feedback,
-        tsi=_maybe(rng, 0.6, 4.0 / bandwidth),
-        torque_limit=_maybe(rng, 0.3, 50.0 * torque_scale),
-        current_lag=_maybe(rng, 0.5, 0.2 * speed_cycle),
-        delay=_maybe(rng, 0.15, speed_cycle),
-        position_cycle=position_cycle,
-        speed_cycle=speed_cycle,
-        velocity_feedforward=_maybe(rng, 0.2, 0.5),
-        speed_filter=_maybe(rng, 0.3, 0.3 * speed_cycle),
-        sensor_time_offset=_maybe(rng, 0.1, 0.5 * position_cycle),
+        disturbance |= {
+            "periodic_amplitude": 0.01 * torque_scale * 100.0,
+            "periodic_period": 0.05 if kind == "linear" else 0.5,
+            "periodic_phase": 0.3,
+        }
+    feedback = "load" if rng.random() < 0.4 else "motor"
+    control = {
+        "kv": kv,
+        "ksp": bandwidth * j_total,
+        "position_feedback": feedback,
+        "tsi": _maybe(rng, 0.6, 4.0 / bandwidth),
+        "torque_limit": _maybe(rng, 0.3, 50.0 * torque_scale),
+        "current_lag": _maybe(rng, 0.5, 0.2 * speed_cycle),
+        "delay": _maybe(rng, 0.15, speed_cycle),
+        "position_cycle": position_cycle,
+        "speed_cycle": speed_cycle,
+        "velocity_feedforward": _maybe(rng, 0.2, 0.5),
+        "speed_filter": _maybe(rng, 0.3, 0.3 * speed_cycle),
+        "sensor_time_offset": _maybe(rng, 0.1, 0.5 * position_cycle),
+    }
+    doc = {
+        "axis": {"kind": kind, "transmission_ratio": kr},
+        "mechanics": mech,
+        "friction": friction,
+        "disturbance": disturbance,
+        "control": control,
+    }
+    # a key without a value is left out of the file
+    return axis_from_mapping(
+        {name: {k: v for k, v in table.items() if v is not None} for name, table in doc.items()}
     )
-    return AxisConfig(kind, kr, mech, control, fr, dist)
 
 
 def recording_of(axis: AxisConfig, rng: np.random.Generator, seconds: float = 5.0) -> Trace | None:
@@ -165,20 +163,21 @@ def _write(tmp: Path, axis: AxisConfig, rec: Trace) -> tuple[Path, Path]:
 
 def _lumped_rigid() -> AxisConfig:
     """The EMPS authors' model as a user writes it: all inertia in the load."""
-    return AxisConfig(
-        AxisKind.LINEAR,
-        1.0,
-        Mechanics(motor_inertia=0.0, screw_inertia=0.0, load_mass=95.0),
-        Control(
-            kv=160.0,
-            ksp=8557.0,
-            position_feedback=PositionFeedback.MOTOR,
-            torque_limit=351.5,
-            position_cycle=0.001,
-            speed_cycle=0.001,
-        ),
-        Friction(coulomb=20.0, viscous=200.0),
-        Disturbance(constant_torque=-3.0),
+    return axis_from_mapping(
+        {
+            "axis": {"kind": "linear", "transmission_ratio": 1.0},
+            "mechanics": {"motor_inertia": 0.0, "screw_inertia": 0.0, "load_mass": 95.0},
+            "control": {
+                "kv": 160.0,
+                "ksp": 8557.0,
+                "position_feedback": "motor",
+                "torque_limit": 351.5,
+                "position_cycle": 0.001,
+                "speed_cycle": 0.001,
+            },
+            "friction": {"coulomb": 20.0, "viscous": 200.0},
+            "disturbance": {"constant_torque": -3.0},
+        }
     )
 
 
