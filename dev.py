@@ -273,11 +273,16 @@ def first_run(argv: Sequence[str], quiet: bool) -> int:
         default=os.cpu_count() or 2,
         help="spinning processes beside them (default: one per CPU)",
     )
-    parser.add_argument("pytest_args", nargs=argparse.REMAINDER, help="pytest arguments")
-    args = parser.parse_args(argv)
+    parser.add_argument(
+        "pytest_args",
+        nargs=argparse.REMAINDER,
+        help="pytest arguments (e.g. `tests -q` for the whole suite); default: the start-up tests",
+    )
+    # pytest's own options (-q, -k ...) pass through, first or not
+    args, unknown = parser.parse_known_args(argv)
     if args.busy < 0:
         parser.error("--busy must be >= 0")
-    pytest_args = list(args.pytest_args) or ["-q", "-k", FIRST_RUN_TESTS]
+    pytest_args = [*unknown, *args.pytest_args] or ["-q", "-k", FIRST_RUN_TESTS]
     with tempfile.TemporaryDirectory(prefix="dev-first-run-") as tmp_dir:
         tmp = Path(tmp_dir)
         (tmp / "numba-cache").mkdir()
