@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from virtual_bus.formats.axis import AxisConfig, AxisKind
+from virtual_bus.formats.axis import RANGES, AxisConfig, AxisKind
 
 from ..physics.model import MAX_OMEGA_DT, KernelOptions
 from .evidence import DataScales
@@ -160,21 +160,15 @@ def physical(key: str, value: float) -> bool:
     return True
 
 
-#: The axis-file format's own ranges (docs/axis-file.md) of the keys whose fitting bounds
-#: come from the recording's scales: a bound beyond them would let the fit try a value no
-#: axis file may hold (a viscous friction of 3e6 on an axis of huge torques).
+#: The axis-file format's own range of each fitted key (virtual_bus.formats.axis.RANGES),
+#: the periodic pseudo-keys' from the amplitude's: a fitting bound beyond it would let the
+#: fit try a value no axis file may hold (a viscous friction of 3e6 on an axis of huge
+#: torques).
+_AMPLITUDE_MAX = RANGES["disturbance.periodic_amplitude"].high / math.sqrt(2.0)
 FORMAT_RANGE: dict[str, tuple[float, float]] = {
-    "mechanics.antiresonance": (0.0, 1e6),
-    "mechanics.damping_ratio": (0.0, 1.0),
-    "mechanics.backlash": (0.0, 0.1),
-    **{
-        f"friction.{name}": (0.0, 1e6)
-        for name in ("coulomb", "coulomb_negative", "stribeck", "viscous", "viscous_negative")
-    },
-    "disturbance.constant_torque": (-1e6, 1e6),
-    PERIODIC_COS: (-1e6 / math.sqrt(2.0), 1e6 / math.sqrt(2.0)),
-    PERIODIC_SIN: (-1e6 / math.sqrt(2.0), 1e6 / math.sqrt(2.0)),
-    "control.sensor_time_offset": (-0.05, 0.05),
+    **{key: (r.low, r.high) for key, r in RANGES.items()},
+    PERIODIC_COS: (-_AMPLITUDE_MAX, _AMPLITUDE_MAX),
+    PERIODIC_SIN: (-_AMPLITUDE_MAX, _AMPLITUDE_MAX),
 }
 
 

@@ -46,21 +46,63 @@ def _fail(key: str, value: object, allowed: str) -> AxisFileError:
     return AxisFileError(f"{key} = {value!r}: {allowed}", key=key, value=value)
 
 
-def _check_range(
-    key: str,
-    value: float | None,
-    *,
-    low: float,
-    high: float = math.inf,
-    low_open: bool = False,
-) -> None:
-    if value is None:
-        return
-    ok = math.isfinite(value) and (value > low if low_open else value >= low) and value <= high
-    if not ok:
-        lo = f"({low:g}" if low_open else f"[{low:g}"
-        hi = "inf)" if math.isinf(high) else f"{high:g}]"
-        raise _fail(key, value, f"allowed range {lo}, {hi}")
+@dataclass(frozen=True)
+class Range:
+    """The values a numeric key allows: ``low`` (excluded when ``low_open``) to ``high``."""
+
+    low: float
+    high: float = math.inf
+    low_open: bool = False
+
+    def allows(self, value: float) -> bool:
+        above = value > self.low if self.low_open else value >= self.low
+        return math.isfinite(value) and above and value <= self.high
+
+    def __str__(self) -> str:
+        lo = f"({self.low:g}" if self.low_open else f"[{self.low:g}"
+        hi = "inf)" if math.isinf(self.high) else f"{self.high:g}]"
+        return f"{lo}, {hi}"
+
+
+#: The allowed range of every numeric key (docs/axis-file.md), checked when a section is
+#: built; other tools (the diagnosis's fit bounds) read them from here.
+RANGES: dict[str, Range] = {
+    "mechanics.motor_inertia": Range(0.0),
+    "mechanics.screw_inertia": Range(0.0),
+    "mechanics.load_mass": Range(0.0, low_open=True),
+    "mechanics.antiresonance": Range(0.0, high=1e6, low_open=True),
+    "mechanics.damping_ratio": Range(0.0, high=1.0),
+    "mechanics.backlash": Range(0.0, high=0.1),
+    "friction.coulomb": Range(0.0, high=1e6),
+    "friction.viscous": Range(0.0, high=1e6),
+    "friction.coulomb_negative": Range(0.0, high=1e6),
+    "friction.viscous_negative": Range(0.0, high=1e6),
+    "friction.stribeck": Range(0.0, high=1e6),
+    "friction.stribeck_speed": Range(0.0, low_open=True),
+    "friction.creep_speed": Range(0.0, low_open=True),
+    "disturbance.constant_torque": Range(-1e6, high=1e6),
+    "disturbance.periodic_amplitude": Range(0.0, high=1e6),
+    "disturbance.periodic_period": Range(0.0, low_open=True),
+    "disturbance.periodic_phase": Range(-1e3, high=1e3),
+    "control.kv": Range(0.0, high=1e4, low_open=True),
+    "control.ksp": Range(0.0, high=1e9, low_open=True),
+    "control.tsi": Range(0.0, high=1e3, low_open=True),
+    "control.torque_limit": Range(0.0, low_open=True),
+    "control.current_lag": Range(0.0, high=1.0),
+    "control.delay": Range(0.0, high=0.1),
+    "control.speed_cycle": Range(1e-6, high=0.1),
+    "control.position_cycle": Range(1e-6, high=1.0),
+    "control.velocity_feedforward": Range(0.0, high=1.5),
+    "control.acceleration_feedforward": Range(0.0, high=1e6),
+    "control.sensor_time_offset": Range(-0.05, high=0.05),
+    "control.speed_filter": Range(0.0, high=0.1),
+    "axis.transmission_ratio": Range(0.0, low_open=True),
+}
+
+
+def _check(key: str, value: float | None) -> None:
+    if value is not None and not RANGES[key].allows(value):
+        raise _fail(key, value, f"allowed range {RANGES[key]}")
 
 
 @dataclass(frozen=True)
@@ -81,14 +123,12 @@ class Mechanics:
 
     def __post_init__(self) -> None:
         # 0 is allowed: a lumped rigid model with all inertia in the load (needs a rigid axis)
-        _check_range("mechanics.motor_inertia", self.motor_inertia, low=0.0)
-        _check_range("mechanics.screw_inertia", self.screw_inertia, low=0.0)
-        _check_range("mechanics.load_mass", self.load_mass, low=0.0, low_open=True)
-        _check_range(
-            "mechanics.antiresonance", self.antiresonance, low=0.0, low_open=True, high=1e6
-        )
-        _check_range("mechanics.damping_ratio", self.damping_ratio, low=0.0, high=1.0)
-        _check_range("mechanics.backlash", self.backlash, low=0.0, high=0.1)
+        _check("mechanics.motor_inertia", self.motor_inertia)
+        _check("mechanics.screw_inertia", self.screw_inertia)
+        _check("mechanics.load_mass", self.load_mass)
+        _check("mechanics.antiresonance", self.antiresonance)
+        _check("mechanics.damping_ratio", self.damping_ratio)
+        _check("mechanics.backlash", self.backlash)
         if self.damping_ratio is not None and self.antiresonance is None:
             raise _fail(
                 "mechanics.damping_ratio",
@@ -133,10 +173,7 @@ class Friction:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            if f.name in ("stribeck_speed", "creep_speed"):
-                _check_range(f"friction.{f.name}", getattr(self, f.name), low=0.0, low_open=True)
-            else:
-                _check_range(f"friction.{f.name}", getattr(self, f.name), low=0.0, high=1e6)
+            _check(f"friction.{f.name}", getattr(self, f.name))
         if (self.stribeck is None) != (self.stribeck_speed is None):
             given = "stribeck" if self.stribeck is not None else "stribeck_speed"
             raise _fail(
@@ -161,10 +198,10 @@ class Disturbance:
     periodic_phase: float | None = None
 
     def __post_init__(self) -> None:
-        _check_range("disturbance.constant_torque", self.constant_torque, low=-1e6, high=1e6)
-        _check_range("disturbance.periodic_amplitude", self.periodic_amplitude, low=0.0, high=1e6)
-        _check_range("disturbance.periodic_period", self.periodic_period, low=0.0, low_open=True)
-        _check_range("disturbance.periodic_phase", self.periodic_phase, low=-1e3, high=1e3)
+        _check("disturbance.constant_torque", self.constant_torque)
+        _check("disturbance.periodic_amplitude", self.periodic_amplitude)
+        _check("disturbance.periodic_period", self.periodic_period)
+        _check("disturbance.periodic_phase", self.periodic_phase)
         if (self.periodic_amplitude is None) != (self.periodic_period is None):
             given = (
                 "periodic_amplitude" if self.periodic_amplitude is not None else "periodic_period"
@@ -208,20 +245,18 @@ class Control:
     speed_filter: float | None = None
 
     def __post_init__(self) -> None:
-        _check_range("control.kv", self.kv, low=0.0, low_open=True, high=1e4)
-        _check_range("control.ksp", self.ksp, low=0.0, low_open=True, high=1e9)
-        _check_range("control.tsi", self.tsi, low=0.0, low_open=True, high=1e3)
-        _check_range("control.torque_limit", self.torque_limit, low=0.0, low_open=True)
-        _check_range("control.current_lag", self.current_lag, low=0.0, high=1.0)
-        _check_range("control.delay", self.delay, low=0.0, high=0.1)
-        _check_range("control.speed_cycle", self.speed_cycle, low=1e-6, high=0.1)
-        _check_range("control.position_cycle", self.position_cycle, low=1e-6, high=1.0)
-        _check_range("control.velocity_feedforward", self.velocity_feedforward, low=0.0, high=1.5)
-        _check_range(
-            "control.acceleration_feedforward", self.acceleration_feedforward, low=0.0, high=1e6
-        )
-        _check_range("control.sensor_time_offset", self.sensor_time_offset, low=-0.05, high=0.05)
-        _check_range("control.speed_filter", self.speed_filter, low=0.0, high=0.1)
+        _check("control.kv", self.kv)
+        _check("control.ksp", self.ksp)
+        _check("control.tsi", self.tsi)
+        _check("control.torque_limit", self.torque_limit)
+        _check("control.current_lag", self.current_lag)
+        _check("control.delay", self.delay)
+        _check("control.speed_cycle", self.speed_cycle)
+        _check("control.position_cycle", self.position_cycle)
+        _check("control.velocity_feedforward", self.velocity_feedforward)
+        _check("control.acceleration_feedforward", self.acceleration_feedforward)
+        _check("control.sensor_time_offset", self.sensor_time_offset)
+        _check("control.speed_filter", self.speed_filter)
         ratio = self.position_cycle / self.speed_cycle
         if abs(ratio - round(ratio)) > 1e-6 * ratio or round(ratio) < 1:
             raise _fail(
@@ -247,7 +282,7 @@ class AxisConfig:
     disturbance: Disturbance = Disturbance()
 
     def __post_init__(self) -> None:
-        _check_range("axis.transmission_ratio", self.transmission_ratio, low=0.0, low_open=True)
+        _check("axis.transmission_ratio", self.transmission_ratio)
         try:  # k_r² in J_l' = J_l / k_r² (section III) must be a finite float > 0
             square = self.transmission_ratio**2
         except OverflowError:
