@@ -58,7 +58,6 @@ from virtual_bus.framing import (
     FramePort,
     MessagePort,
     OutFrame,
-    ReusedMessage,
     frame_port,
 )
 from virtual_bus.realtime import GcBetweenCycles
@@ -93,11 +92,6 @@ DEFAULT_SERVICE_GUARD_FRACTION = 0.25
 LATE_READ_FRAMES = 16
 #: Cycles in a row that overrun (a SYNC slot after them skipped) before the axis is stopped.
 DEFAULT_OVERRUN_LIMIT = 3
-
-
-#: A frame the loop sends every cycle through python-can, built once and reused (the
-#: generic port's; virtual_bus.framing.ReusedMessage).
-CycleMessage = ReusedMessage
 
 
 @contextlib.contextmanager
@@ -303,7 +297,6 @@ class Bridge:
         self.layout = layout
         self.controller.set_layout(layout)
         self._tpdo_ids = layout.can_ids
-        self._tpdo_dlc = tuple(f.dlc for f in layout.frames)
         self._slot_of = {cid: i for i, cid in enumerate(self._tpdo_ids)}
         #: COB-ID -> (bit, length, slot) of each TPDO of the layout (the loop's window)
         self._tpdos = {f.can_id: (1 << i, f.dlc, i) for i, f in enumerate(layout.frames)}
@@ -466,10 +459,10 @@ class Bridge:
         counted as it counts) is decoded where it lies; anything else becomes a message and
         goes :meth:`_receive`'s way."""
         frames = self.frames
-        slot = self._slot_of.get(cob_id)
-        if slot is not None and frames.length == self._tpdo_dlc[slot]:
+        tpdo = self._tpdos.get(cob_id)
+        if tpdo is not None and frames.length == tpdo[1]:
             self.guard.accepted += 1
-            self._tpdo(slot, frames.buffer, frames.offset)
+            self._tpdo(tpdo[2], frames.buffer, frames.offset)
             return
         try:
             msg = frames.message()
