@@ -19,7 +19,6 @@ filter and scaled by its whitened noise, with the null of :mod:`.randomization`.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
@@ -243,12 +242,3 @@ def loop_tests(
         est = {cand.key: float(value), GAIN_KEY: gain}
         out[cand.effect] = EffectTest(cand.effect, NAME, result, est, {})
     return out, len(jobs) + 1
-
-
-def delay_grid(speed_cycle: float) -> tuple[float, ...]:
-    """The dead times a loop test scans (for documentation and tests)."""
-    return tuple(
-        n * speed_cycle
-        for n in DELAY_CYCLES
-        if n <= MAX_DELAY and n * speed_cycle <= 0.1 + math.ulp(0.1)
-    )
