@@ -99,10 +99,20 @@ RANGES: dict[str, Range] = {
     "axis.transmission_ratio": Range(0.0, low_open=True),
 }
 
+#: The keys of RANGES per section, in the table's order.
+_SECTION_KEYS = {
+    section: tuple(key for key in RANGES if key.startswith(section + "."))
+    for section in ("axis", "mechanics", "friction", "disturbance", "control")
+}
 
-def _check(key: str, value: float | None) -> None:
-    if value is not None and not RANGES[key].allows(value):
-        raise _fail(key, value, f"allowed range {RANGES[key]}")
+
+def _check_section(section: str, values: object) -> None:
+    """Every key of ``section`` in :data:`RANGES` on ``values`` (a section's dataclass),
+    in the table's order; an absent value (None) is not checked."""
+    for key in _SECTION_KEYS[section]:
+        value = getattr(values, key.partition(".")[2])
+        if value is not None and not RANGES[key].allows(value):
+            raise _fail(key, value, f"allowed range {RANGES[key]}")
 
 
 @dataclass(frozen=True)
@@ -123,12 +133,7 @@ class Mechanics:
 
     def __post_init__(self) -> None:
         # 0 is allowed: a lumped rigid model with all inertia in the load (needs a rigid axis)
-        _check("mechanics.motor_inertia", self.motor_inertia)
-        _check("mechanics.screw_inertia", self.screw_inertia)
-        _check("mechanics.load_mass", self.load_mass)
-        _check("mechanics.antiresonance", self.antiresonance)
-        _check("mechanics.damping_ratio", self.damping_ratio)
-        _check("mechanics.backlash", self.backlash)
+        _check_section("mechanics", self)
         if self.damping_ratio is not None and self.antiresonance is None:
             raise _fail(
                 "mechanics.damping_ratio",
@@ -172,8 +177,7 @@ class Friction:
     creep_speed: float | None = None
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            _check(f"friction.{f.name}", getattr(self, f.name))
+        _check_section("friction", self)
         if (self.stribeck is None) != (self.stribeck_speed is None):
             given = "stribeck" if self.stribeck is not None else "stribeck_speed"
             raise _fail(
@@ -198,10 +202,7 @@ class Disturbance:
     periodic_phase: float | None = None
 
     def __post_init__(self) -> None:
-        _check("disturbance.constant_torque", self.constant_torque)
-        _check("disturbance.periodic_amplitude", self.periodic_amplitude)
-        _check("disturbance.periodic_period", self.periodic_period)
-        _check("disturbance.periodic_phase", self.periodic_phase)
+        _check_section("disturbance", self)
         if (self.periodic_amplitude is None) != (self.periodic_period is None):
             given = (
                 "periodic_amplitude" if self.periodic_amplitude is not None else "periodic_period"
@@ -245,18 +246,7 @@ class Control:
     speed_filter: float | None = None
 
     def __post_init__(self) -> None:
-        _check("control.kv", self.kv)
-        _check("control.ksp", self.ksp)
-        _check("control.tsi", self.tsi)
-        _check("control.torque_limit", self.torque_limit)
-        _check("control.current_lag", self.current_lag)
-        _check("control.delay", self.delay)
-        _check("control.speed_cycle", self.speed_cycle)
-        _check("control.position_cycle", self.position_cycle)
-        _check("control.velocity_feedforward", self.velocity_feedforward)
-        _check("control.acceleration_feedforward", self.acceleration_feedforward)
-        _check("control.sensor_time_offset", self.sensor_time_offset)
-        _check("control.speed_filter", self.speed_filter)
+        _check_section("control", self)
         ratio = self.position_cycle / self.speed_cycle
         if abs(ratio - round(ratio)) > 1e-6 * ratio or round(ratio) < 1:
             raise _fail(
@@ -282,7 +272,7 @@ class AxisConfig:
     disturbance: Disturbance = Disturbance()
 
     def __post_init__(self) -> None:
-        _check("axis.transmission_ratio", self.transmission_ratio)
+        _check_section("axis", self)
         try:  # k_r² in J_l' = J_l / k_r² (section III) must be a finite float > 0
             square = self.transmission_ratio**2
         except OverflowError:
