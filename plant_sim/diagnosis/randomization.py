@@ -152,6 +152,63 @@ def between_blocks_factor(g: np.ndarray) -> float:
     return max(1.0, total / fine)
 
 
+#: Cosines of the low-frequency estimate of the scores' long-run variance
+#: (:func:`low_frequency_factor`): the lowest 8 frequencies of the recording, j/(2·T).
+LOW_FREQUENCY_COSINES = 8
+
+
+def low_frequency_factor(g: np.ndarray) -> float:
+    """The equal-weighted cosine (EWC) estimate of the scores' long-run variance over their
+    white one: ``g`` the block sums of the scores (rows: blocks in time order, columns: a
+    candidate's regressors), Λ_j = √(2/B)·Σ_b cos(πj(b+½)/B)·g_b for j = 1..ν
+    (ν = LOW_FREQUENCY_COSINES), the factor B·Σ_j‖Λ_j‖²/ν / Σ_b‖g_b‖²; 1 for white scores.
+
+    A load that steps and stays for seconds (a process force, a cable chain, the axis warming)
+    has its power at the lowest frequencies of the recording, below what a lag window of a
+    16th of the recording sums (:func:`between_blocks_factor`): its mean over the recording is
+    as large as its spread, and a constant regressor projects on exactly that. The cosines
+    measure that power where it is; the estimate has ν degrees of freedom, so a test widened
+    by it is judged against F(k, ν) (Müller 2007; Lazarus, Lewis, Stock & Watson 2018,
+    "HAR inference: recommendations for practice"), which :func:`scan_test` and
+    :func:`face_value_test` do by dividing each replicate by an independent χ²_ν/ν."""
+    g = np.atleast_2d(np.asarray(g, dtype=float))
+    if g.shape[0] == 1 and g.shape[1] > 1:
+        g = g.T
+    nb = g.shape[0]
+    nu = LOW_FREQUENCY_COSINES
+    fine = float(np.sum(g**2))
+    if nu < 1 or nb < 4 * nu or not fine > 0.0:
+        return 1.0
+    j = np.arange(1, nu + 1)[:, None]
+    cosines = math.sqrt(2.0 / nb) * np.cos(math.pi * j * (np.arange(nb) + 0.5) / nb)
+    lam = cosines @ g
+    return nb * float(np.sum(lam**2)) / nu / fine
+
+
+def long_run_factor(g: np.ndarray) -> tuple[float, int | None]:
+    """The factor the null is widened by for scores ``g`` (block sums), at least 1: the
+    larger of the lag window's (:func:`between_blocks_factor`, taken as exact: None) and
+    the low frequencies' (:func:`low_frequency_factor`, with its ν degrees of freedom).
+    On white scores the low frequencies' estimate is the larger half of the time and the
+    test then pays F(k, ν)'s heavier tail: a conservative null, the price of not taking a
+    load that stays for the recording's length for an effect."""
+    lag = between_blocks_factor(g)
+    low = low_frequency_factor(g)
+    if low > lag:
+        return low, LOW_FREQUENCY_COSINES
+    return lag, None
+
+
+def _variance_draws(
+    dof: int | None, replicates: int, rng: np.random.Generator
+) -> np.ndarray | float:
+    """Per replicate, the factor ν/χ²_ν that turns a null with an estimated variance into
+    the F (or t) distribution it then has (1 when the variance is taken as known)."""
+    if dof is None:
+        return 1.0
+    return dof / rng.chisquare(dof, replicates)
+
+
 def long_run_tau(r: np.ndarray) -> float:
     """Correlation length of ``r`` in samples as the variance of its sum sees it: the largest
     over batch sizes B (10 samples up to a 20th of the series) of B·var(batch means)/var(r)
@@ -289,8 +346,8 @@ def scan_test(
             start += wdt
     # the scores' correlation between blocks, at the best point (where the statistic is)
     col0 = sum(widths[:best])
-    kappa = between_blocks_factor(g[:, col0 : col0 + widths[best]])
-    t_null *= inflation * kappa
+    kappa, dof = long_run_factor(g[:, col0 : col0 + widths[best]])
+    t_null *= inflation * kappa * _variance_draws(dof, replicates, rng)
     p_emp = (1.0 + float(np.sum(t_null >= t_obs))) / (1.0 + replicates)
     mean, var = float(np.mean(t_null)), float(np.var(t_null))
     if mean > 0.0 and var > 0.0:
@@ -365,7 +422,9 @@ def face_value_test(
     cov = 4.0 * (g.T @ g)
     sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
     # each point's noise widened by its scores' correlation between blocks
-    kappa = np.array([between_blocks_factor(g[:, k : k + 1]) for k in range(g.shape[1])])
+    factors = [long_run_factor(g[:, k : k + 1]) for k in range(g.shape[1])]
+    kappa = np.array([f for f, _ in factors])
+    dof = min((d for _, d in factors if d is not None), default=None)
     # studentised: each point's saving over its own noise (a long dead time has a large
     # signature and a large noise projection; it must not set the scale of the others)
     stat = saved / (sd * np.sqrt(kappa))
@@ -375,10 +434,10 @@ def face_value_test(
     # H0: the effect at its own size saves nothing at any point (T_k <= 0); at its boundary
     # the saving's error 2·z̃·e is normal with the block sums' covariance
     draws = (rng.standard_normal((replicates, len(zt))) @ root.T) / sd
-    t_null = np.max(draws, axis=1)
+    t_null = np.max(draws, axis=1) * np.sqrt(_variance_draws(dof, replicates, rng))
     p_emp = (1.0 + float(np.sum(t_null >= t_obs))) / (1.0 + replicates)
     # beyond the replicates: the normal tail of the best point, Bonferroni over the scan
-    p_tail = float(stats.norm.sf(t_obs))
+    p_tail = float(stats.norm.sf(t_obs) if dof is None else stats.t.sf(t_obs, dof))
     p = min(1.0, p_tail * len(zt)) if p_emp <= 1.5 / (1.0 + replicates) else p_emp
     z = float(stats.norm.isf(max(min(p, 1.0), 1e-300))) if p < 1.0 else -math.inf
     best = first

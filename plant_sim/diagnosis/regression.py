@@ -29,8 +29,8 @@ from .effects import Effect
 from .randomization import (
     ScanResult,
     Whitener,
-    between_blocks_factor,
     fit_whitener,
+    long_run_factor,
     scan_test,
     time_blocks,
 )
@@ -120,7 +120,7 @@ class Fitted:
         # the coefficient's own score: the block sums of (XᵀX)⁻¹x·e
         own = g @ xtx_inv
         return {
-            k: float(np.sqrt(max(cov[i, i], 0.0) * between_blocks_factor(own[:, i : i + 1])))
+            k: float(np.sqrt(max(cov[i, i], 0.0) * long_run_factor(own[:, i : i + 1])[0]))
             for i, k in enumerate(keys)
         }
 
