@@ -50,6 +50,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--cases", nargs="+", default=None, metavar="NAME", help="case names (default all)"
     )
+    parser.add_argument(
+        "--validate",
+        type=cli.bounded_int(0, 3),
+        default=0,
+        metavar="N",
+        help="hold out N second recordings of each case's hidden truth, made at another time "
+        "(new moves, unrecorded load and noise), as diagnose --validate does; 0..3 (default 0: "
+        "interleaved blocks of the one recording)",
+    )
     parser.add_argument("--json", type=cli.new_file, help="also write the results (JSON lines)")
     cli.add_quiet(parser)
 
@@ -59,10 +68,13 @@ def run(args: argparse.Namespace) -> int:
         plant = load_plant(args.plant)
     except ValueError as exc:
         raise cli.UsageError(f"--plant: {exc}") from None
+    stem = f"matrix_{args.plant}_seed{args.seed}" + (
+        f"_validate{args.validate}" if args.validate else ""
+    )
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         if args.json is None:
-            args.json = args.out / f"matrix_{args.plant}_seed{args.seed}.jsonl"
+            args.json = args.out / f"{stem}.jsonl"
     cases = plant.cases(args.seed, args.duration)
     if args.cases:
         known = {c.name for c in cases}
@@ -90,12 +102,19 @@ def run(args: argparse.Namespace) -> int:
             failed.append(line)
 
         try:
-            results = run_matrix(cases, on_result=on_result, plant=plant, on_error=on_error)
+            results = run_matrix(
+                cases, on_result=on_result, plant=plant, on_error=on_error, validate=args.validate
+            )
         finally:
             if sink is not None:
                 sink.close()
     text = (
-        f"Plant: {plant.name}, seed {args.seed}, {args.duration:g} s per recording.\n\n"
+        f"Plant: {plant.name}, seed {args.seed}, {args.duration:g} s per recording"
+        + (
+            f", {args.validate} second recording(s) of each held out (--validate).\n\n"
+            if args.validate
+            else ", interleaved blocks held out.\n\n"
+        )
         + confusion_markdown(results)
         + "\n\n"
         + cases_markdown(results)
@@ -105,5 +124,5 @@ def run(args: argparse.Namespace) -> int:
     )
     print(text, end="")
     if args.out is not None:
-        (args.out / f"matrix_{args.plant}_seed{args.seed}.md").write_text(text, encoding="utf-8")
+        (args.out / f"{stem}.md").write_text(text, encoding="utf-8")
     return 0

@@ -1,8 +1,8 @@
 """Confusion matrix and fit improvements of the diagnosis on the concealed test set.
 
 ``python -m plant_sim matrix [--plant kernel|independent|third] [--seed 2] [--duration 25]
-[--cases NAME ...] [--out DIR]`` runs :func:`run_matrix` on the plant's test set and prints
-the markdown tables (confusion matrix, per-case results with concealment and fit
+[--cases NAME ...] [--validate N] [--out DIR]`` runs :func:`run_matrix` on the plant's test
+set and prints the markdown tables (confusion matrix, per-case results with concealment and fit
 before/after, timings); ``--out`` also writes them to ``DIR/matrix_<plant>_seed<S>.md`` (and
 the results as JSON lines).
 
@@ -24,11 +24,14 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from virtual_bus.formats.trace import Trace
+
 from .effects import Effect, effects_in
 from .engine import DiagnosisOptions, diagnose
 from .synthetic import (
     Case,
     GeneratedCase,
+    another_recording,
     concealment,
     generate,
     test_set,
@@ -42,12 +45,15 @@ DEFAULT_OPTIONS = DiagnosisOptions()
 class MatrixPlant:
     """What makes the recordings: ``cases`` the test set of a seed and duration,
     ``generate`` turns a case into a recording, nominal file and hidden truth,
-    ``concealment`` says how hidden its effect is (the same plant noise-free)."""
+    ``concealment`` says how hidden its effect is (the same plant noise-free),
+    ``another`` makes a second recording of a generated case's hidden truth at another time
+    (take 1, 2, ...: new moves, unrecorded load and noise; the matrix's ``--validate``)."""
 
     name: str
     cases: Callable[[int, float], list[Case]]
     generate: Callable[[Case], GeneratedCase]
     concealment: Callable[[GeneratedCase], dict[str, float]]
+    another: Callable[[GeneratedCase, int], Trace]
 
 
 def _kernel_cases(seed: int, duration_s: float) -> list[Case]:
@@ -58,7 +64,9 @@ def _kernel_concealment(gen: GeneratedCase) -> dict[str, float]:
     return concealment(gen, truth_simulator)
 
 
-KERNEL_PLANT = MatrixPlant("kernel", _kernel_cases, generate, _kernel_concealment)
+KERNEL_PLANT = MatrixPlant(
+    "kernel", _kernel_cases, generate, _kernel_concealment, another_recording
+)
 PLANTS = ("kernel", "independent", "third")
 
 
@@ -89,7 +97,9 @@ def load_plant(name: str) -> MatrixPlant:
         def conceal(gen: GeneratedCase) -> dict[str, float]:
             return concealment(gen, recording.simulator)
 
-        return MatrixPlant("independent", _kernel_cases, recording.generate, conceal)
+        return MatrixPlant(
+            "independent", _kernel_cases, recording.generate, conceal, recording.another_recording
+        )
     if name == "third":
         third = _tests_package("third_plant")
         cases = importlib.import_module("tests.third_plant.cases")
@@ -97,7 +107,13 @@ def load_plant(name: str) -> MatrixPlant:
         def third_cases(seed: int, duration_s: float) -> list[Case]:
             return cases.test_set(seed, duration_s)
 
-        return MatrixPlant("third", third_cases, third.generate, third.concealment)  # type: ignore[attr-defined]
+        return MatrixPlant(
+            "third",
+            third_cases,
+            third.generate,  # type: ignore[attr-defined]
+            third.concealment,  # type: ignore[attr-defined]
+            third.another_recording,  # type: ignore[attr-defined]
+        )
     raise ValueError(f"plant {name!r}: allowed {PLANTS}")
 
 
@@ -122,11 +138,17 @@ class CaseResult:
 
 
 def run_case(
-    case: Case, options: DiagnosisOptions = DEFAULT_OPTIONS, plant: MatrixPlant = KERNEL_PLANT
+    case: Case,
+    options: DiagnosisOptions = DEFAULT_OPTIONS,
+    plant: MatrixPlant = KERNEL_PLANT,
+    validate: int = 0,
 ) -> CaseResult:
+    """Diagnose ``case``'s recording; ``validate``: that many second recordings of the same
+    hidden truth held out (``diagnose(..., validation=...)``) instead of interleaved blocks."""
     gen = plant.generate(case)
+    second = [plant.another(gen, take) for take in range(1, validate + 1)]
     t0 = time.perf_counter()
-    d = diagnose(gen.recording, gen.nominal, options=options)
+    d = diagnose(gen.recording, gen.nominal, validation=second or None, options=options)
     secs = time.perf_counter() - t0
     truth = case.effect.value if case.effect else "none"
     named = [e.value for e in d.left_out]
@@ -162,13 +184,14 @@ def run_matrix(
     on_result: Callable[[CaseResult], None] | None = None,
     plant: MatrixPlant = KERNEL_PLANT,
     on_error: Callable[[Case, Exception], None] | None = None,
+    validate: int = 0,
 ) -> list[CaseResult]:
-    """One result per case; with ``on_error`` a case whose diagnosis raises is reported there
-    and left out (without it the exception propagates)."""
+    """One result per case (``validate``: :func:`run_case`); with ``on_error`` a case whose
+    diagnosis raises is reported there and left out (without it the exception propagates)."""
     results = []
     for case in cases:
         try:
-            r = run_case(case, options, plant)
+            r = run_case(case, options, plant, validate)
         except Exception as exc:
             if on_error is None:
                 raise

@@ -447,19 +447,39 @@ def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
     refs = References(refs0.position, refs0.speed, process)
     truth, truth_without = hidden_axes(case, refs, plant)
     nominal = _perturb(truth_without, rng)
-    cols = recorded_columns(plant(truth, refs))
-    m = len(cols["time"])
-    for name in ("motor_position", "load_position", "motor_speed", "motor_torque"):
-        cols[name] = cols[name] + getattr(fam.noise, name) * rng.standard_normal(m)
     return GeneratedCase(
         case=case,
-        recording=Trace(cols),
+        recording=_recorded(plant(truth, refs), fam.noise, rng),
         nominal=nominal,
         truth=truth,
         truth_without=truth_without,
         references=refs,
         process_nm=process,
     )
+
+
+def _recorded(sim: Trace, noise: Noise, rng: np.random.Generator) -> Trace:
+    """What a recording keeps of the noise-free ``sim``, with the measurement noise."""
+    cols = recorded_columns(sim)
+    m = len(cols["time"])
+    for name in ("motor_position", "load_position", "motor_speed", "motor_torque"):
+        cols[name] = cols[name] + getattr(noise, name) * rng.standard_normal(m)
+    return Trace(cols)
+
+
+def another_recording(gen: GeneratedCase, take: int, plant: Simulator = truth_simulator) -> Trace:
+    """A second recording of ``gen``'s hidden truth made at another time (``take`` >= 1): the
+    same axis, new moves, a new unrecorded load and new noise (what ``--validate`` is for)."""
+    if take < 1:
+        raise DiagnosisOptionError(f"take = {take!r}: a second recording is take 1 or more")
+    fam = family_of(gen.case)
+    rng = np.random.default_rng([gen.case.seed, take])
+    cycle = fam.truth.control.position_cycle
+    position = reference_profile(fam.excitation, gen.case.duration_s, cycle, rng)
+    refs0 = References.from_position(position, cycle)
+    process = process_disturbance(fam.noise, len(position), cycle, rng)
+    refs = References(refs0.position, refs0.speed, process)
+    return _recorded(plant(gen.truth, refs), fam.noise, rng)
 
 
 def concealment(gen: GeneratedCase, simulator: Simulator | None = None) -> dict[str, float]:

@@ -78,10 +78,26 @@ def generate(case: Case) -> GeneratedCase:
     drive = {"control.speed_filter": PlantOptions().speed_filter_s}
     truth, truth_without = (a.with_values(drive) for a in hidden_axes(case, refs, simulator))
     nominal = _perturb(truth_without, rng)
-    cols = recorded_columns(simulator(truth, refs))
+    return GeneratedCase(
+        case=case,
+        recording=_recorded(simulator(truth, refs), case, rng),
+        nominal=nominal,
+        truth=truth,
+        truth_without=truth_without,
+        references=refs,
+        process_nm=process,
+    )
+
+
+def _recorded(sim: Trace, case: Case, rng: np.random.Generator) -> Trace:
+    """What a recording keeps of the noise-free ``sim``, with coloured torque and speed noise
+    and white position noise."""
+    fam = FAMILIES[case.family]
+    cols = recorded_columns(sim)
     m = len(cols["time"])
+    n = len(sim)
     noise = fam.noise
-    fs = 1.0 / cycle
+    fs = 1.0 / fam.truth.control.position_cycle
     keep = slice(0, None, DECIMATION)
     torque_noise = _coloured(rng, n, 300.0, fs)[keep][:m]
     speed_noise = _coloured(rng, n, 400.0, fs)[keep][:m]
@@ -89,12 +105,19 @@ def generate(case: Case) -> GeneratedCase:
     cols["motor_speed"] = cols["motor_speed"] + noise.motor_speed * speed_noise
     for name in ("motor_position", "load_position"):
         cols[name] = cols[name] + 0.5 * getattr(noise, name) * rng.standard_normal(m)
-    return GeneratedCase(
-        case=case,
-        recording=Trace(cols),
-        nominal=nominal,
-        truth=truth,
-        truth_without=truth_without,
-        references=refs,
-        process_nm=process,
-    )
+    return Trace(cols)
+
+
+def another_recording(gen: GeneratedCase, take: int) -> Trace:
+    """A second recording of ``gen``'s hidden truth at another time (``take`` >= 1): the same
+    axis, new moves, a new unrecorded load and new noise."""
+    if take < 1:
+        raise ValueError(f"take = {take!r}: a second recording is take 1 or more")
+    fam = FAMILIES[gen.case.family]
+    rng = np.random.default_rng([gen.case.seed + SEED_SHIFT, take])
+    cycle = fam.truth.control.position_cycle
+    position = reference_profile(fam.excitation, gen.case.duration_s, cycle, rng)
+    refs0 = References.from_position(position, cycle)
+    process = process_torque(fam.noise.process_nm, len(position), cycle, rng)
+    refs = References(refs0.position, refs0.speed, process)
+    return _recorded(simulator(gen.truth, refs), gen.case, rng)

@@ -104,6 +104,7 @@ def test_paper_as_given_runs_are_one_file_because_they_are_identical(
         (("sweep", "--out", "x", "--kv", "20", "-30"), "every value must be a finite number > 0"),
         (("bench", "--repeat", "0"), "must be >= 1"),
         (("matrix", "--duration", "1"), "allowed 5..600"),
+        (("matrix", "--validate", "4"), "allowed 0..3"),
         (("frobnicate",), "invalid choice"),
         ((), "required: COMMAND"),
     ],

@@ -34,7 +34,16 @@ families                mill, slide          mill, slide            rotary table
 third``). The axis-file format is shared (:func:`.plant.axis_of` writes what a user would).
 """
 
-from .cases import FAMILIES, concealment, generate, test_set
+from .cases import FAMILIES, another_recording, concealment, generate, test_set
 from .plant import Physics, axis_of, simulate
 
-__all__ = ["FAMILIES", "Physics", "axis_of", "concealment", "generate", "simulate", "test_set"]
+__all__ = [
+    "FAMILIES",
+    "Physics",
+    "another_recording",
+    "axis_of",
+    "concealment",
+    "generate",
+    "simulate",
+    "test_set",
+]

@@ -381,17 +381,21 @@ def _nominal_of(truth: Physics, effect: Effect | None) -> AxisConfig:
     return out
 
 
-def truth_of(case: Case) -> Truth:
-    """The physics of ``case`` (deterministic in its seed)."""
-    fam = _family(case)
-    rng = np.random.default_rng(case.seed + SEED_SHIFT)
+def _inputs(fam: Family, duration_s: float, rng: np.random.Generator) -> References:
+    """An NC program's position and speed references and the unrecorded process load."""
     cycle = fam.base.position_cycle
-    position = program(fam.motion, case.duration_s, cycle, rng)
+    position = program(fam.motion, duration_s, cycle, rng)
     speed = np.empty_like(position)
     speed[:-1] = np.diff(position) / cycle
     speed[-1] = speed[-2]
     load = process_load(fam.noise.process, len(position), cycle, rng)
-    refs = References(position, speed, load)
+    return References(position, speed, load)
+
+
+def truth_of(case: Case) -> Truth:
+    """The physics of ``case`` (deterministic in its seed)."""
+    fam = _family(case)
+    refs = _inputs(fam, case.duration_s, np.random.default_rng(case.seed + SEED_SHIFT))
     without = fam.base
     truth = fam.base if case.effect is None else fam.effects[case.effect](fam.base)
     if case.effect is Effect.TORQUE_SATURATION:
@@ -443,6 +447,20 @@ def generate(case: Case) -> GeneratedCase:
         references=truth.references,
         process_nm=truth.references.disturbance_nm,
     )
+
+
+def another_recording(gen: GeneratedCase, take: int) -> Trace:
+    """A second recording of ``gen``'s hidden truth at another time (``take`` >= 1): the same
+    axis (a concealed torque limit stays where the first recording's peak demand put it),
+    another NC program, another unrecorded load, new noise."""
+    if take < 1:
+        raise ValueError(f"take = {take!r}: a second recording is take 1 or more")
+    fam = _family(gen.case)
+    truth = truth_of(gen.case).with_effect
+    rng = np.random.default_rng([gen.case.seed + SEED_SHIFT, take])
+    refs = _inputs(fam, gen.case.duration_s, rng)
+    sim = simulate(truth, refs.position, refs.speed, refs.disturbance_nm)
+    return Trace(_recorded(sim, fam.noise, rng))
 
 
 def concealment(gen: GeneratedCase) -> dict[str, float]:
