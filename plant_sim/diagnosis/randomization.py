@@ -21,8 +21,9 @@ y − X·β that the base regressors X leave, beyond what the recording's own no
   blocks are weighted, so the recording's own autocorrelation within a block and its
   heteroscedasticity (noise that is larger where the axis accelerates) are kept. A residual
   that wanders for longer than a block (an unrecorded load that steps and stays) leaves the
-  block sums correlated; the null is widened by that correlation, summed over a 16th of the
-  recording (:func:`between_blocks_factor`).
+  block sums correlated; the null is widened by that correlation (:func:`long_run_factor`:
+  summed over a 16th of the recording, :func:`between_blocks_factor`, or measured at the
+  recording's lowest frequencies with its degrees of freedom, :func:`low_frequency_factor`).
   p = (1 + #{T* ≥ T}) / (1 + replicates).
 
 A test at level α names an effect that is not there with probability ≈ α when the residual
