@@ -13,7 +13,7 @@ import math
 from collections.abc import Sequence
 
 from .adequacy import inadequate
-from .effects import MODELS
+from .effects import MODELS, Effect
 from .mismatch import ResidualTests
 from .outcome import Diagnosis
 from .parameters import MODEL_FORM_KEYS, format_value, rounded
@@ -179,7 +179,14 @@ def explain(d: Diagnosis) -> str:
             "torque below 10, every fit at least 50 %): nothing of the table is needed to "
             "explain this recording."
         )
-    if d.left_out:
+    if Effect.CONSTANT_LOAD_TORQUE in d.left_out and d.validation == "interleaved blocks":
+        parts.append(
+            "Within one recording a load that stays for the whole run (a process force, a "
+            "cable chain) and a constant load torque are the same thing: confirm it with "
+            "`diagnose --validate` on a recording made at another time, whose held-out gate "
+            "drops a load that was only this run's."
+        )
+    elif d.left_out:
         parts.append(
             "Check the fitted model on a second recording with `python -m plant_sim simulate "
             "--like` (or `diagnose --validate`)."

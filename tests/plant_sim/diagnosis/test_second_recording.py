@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from plant_sim.diagnosis.effects import Effect
+from plant_sim.diagnosis.engine import diagnose
 from plant_sim.diagnosis.matrix import PLANTS, load_plant, run_case
 from plant_sim.diagnosis.synthetic import Case
 
@@ -43,11 +44,18 @@ def test_another_recording_is_the_same_axis_at_another_time(plant_name: str) -> 
 def test_a_second_recording_refutes_a_load_that_was_only_this_runs() -> None:
     """The third plant's clean rotary recording of seed 12 carries an unrecorded load whose
     mean over the run is 20 mN·m (a random walk of load steps) — the size of the load torque
-    its test set conceals (28 mN·m). Alone, the recording names a constant load torque
-    (measured, and in docs/matrix-results.md); with a second recording made at another
+    its test set conceals (28 mN·m). Alone, the recording names a constant load torque, and
+    the explanation asks for a second recording; with a second recording made at another
     time held out, the gate drops it. The concealed load on the same seed stays named."""
     plant = load_plant("third")
     clean = next(c for c in plant.cases(12, 25.0) if c.name == "rotary-none-1")
-    assert run_case(clean, plant=plant, validate=1).left_out == []
+    gen = plant.generate(clean)
+    alone = diagnose(gen.recording, gen.nominal)
+    assert alone.left_out == [Effect.CONSTANT_LOAD_TORQUE]
+    assert "diagnose --validate` on a recording made at another time" in alone.explanation
+    both = diagnose(gen.recording, gen.nominal, validation=plant.another(gen, 1))
+    assert both.left_out == []
+    dropped = [g.effect for g in both.closed_loop.gate if not g.kept]
+    assert Effect.CONSTANT_LOAD_TORQUE in dropped
     loaded = next(c for c in plant.cases(12, 25.0) if c.name == "rotary-constant_load_torque")
     assert run_case(loaded, plant=plant, validate=1).left_out == ["constant_load_torque"]
