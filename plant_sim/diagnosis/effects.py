@@ -45,9 +45,6 @@ class EffectModel:
     effect: ClassVar[Effect]
     keys: ClassVar[tuple[str, ...]]
     description: ClassVar[str]
-    #: keys re-fitted with the model's uncertain parameters once the diagnosis added the
-    #: effect (control keys are machine data otherwise)
-    refit_keys: ClassVar[tuple[str, ...]] = ()
 
     def present(self, axis: AxisConfig) -> bool:
         """The model has the effect: one of its keys is present (0 included)."""
@@ -164,7 +161,6 @@ class TorqueSaturation(EffectModel):
     effect = Effect.TORQUE_SATURATION
     keys = ("control.torque_limit",)
     description = "a torque limit that clips the fastest accelerations"
-    refit_keys = ("control.torque_limit",)
 
 
 class TimeDelay(EffectModel):
@@ -180,7 +176,6 @@ class SensorTimeOffset(EffectModel):
         "the load measuring system samples at another time than the motor's (positive: the "
         "load position is older)"
     )
-    refit_keys = ("control.sensor_time_offset",)
 
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         value = fitted.value("control.sensor_time_offset") or 0.0
