@@ -106,7 +106,7 @@ class Fitted:
     def standard_errors(self, rec: Relation) -> dict[str, float]:
         """Block-robust standard errors of the base coefficients (sandwich over blocks), each
         widened by its scores' correlation between blocks (:func:`.randomization.
-        between_blocks_factor`)."""
+        long_run_factor`)."""
         keys = list(self.keys)
         if not keys:
             return {}

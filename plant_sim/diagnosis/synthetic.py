@@ -436,15 +436,22 @@ def family_of(case: Case) -> Family:
     return FAMILIES[case.family]
 
 
-def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
-    """Simulate the recording of ``case`` with ``plant`` (deterministic in its seed)."""
+def _references(case: Case, rng: np.random.Generator) -> References:
+    """The inputs of a recording of ``case``: the excitation's position and speed references
+    and the unrecorded process load (drawn from ``rng`` in that order)."""
     fam = family_of(case)
-    rng = np.random.default_rng(case.seed)
     cycle = fam.truth.control.position_cycle
     position = reference_profile(fam.excitation, case.duration_s, cycle, rng)
     refs0 = References.from_position(position, cycle)
     process = process_disturbance(fam.noise, len(position), cycle, rng)
-    refs = References(refs0.position, refs0.speed, process)
+    return References(refs0.position, refs0.speed, process)
+
+
+def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
+    """Simulate the recording of ``case`` with ``plant`` (deterministic in its seed)."""
+    fam = family_of(case)
+    rng = np.random.default_rng(case.seed)
+    refs = _references(case, rng)
     truth, truth_without = hidden_axes(case, refs, plant)
     nominal = _perturb(truth_without, rng)
     return GeneratedCase(
@@ -454,7 +461,7 @@ def generate(case: Case, plant: Simulator = truth_simulator) -> GeneratedCase:
         truth=truth,
         truth_without=truth_without,
         references=refs,
-        process_nm=process,
+        process_nm=refs.disturbance_nm,
     )
 
 
@@ -474,11 +481,7 @@ def another_recording(gen: GeneratedCase, take: int, plant: Simulator = truth_si
         raise DiagnosisOptionError(f"take = {take!r}: a second recording is take 1 or more")
     fam = family_of(gen.case)
     rng = np.random.default_rng([gen.case.seed, take])
-    cycle = fam.truth.control.position_cycle
-    position = reference_profile(fam.excitation, gen.case.duration_s, cycle, rng)
-    refs0 = References.from_position(position, cycle)
-    process = process_disturbance(fam.noise, len(position), cycle, rng)
-    refs = References(refs0.position, refs0.speed, process)
+    refs = _references(gen.case, rng)
     return _recorded(plant(gen.truth, refs), fam.noise, rng)
 
 

@@ -63,16 +63,21 @@ def process_torque(std_nm: float, n: int, cycle_s: float, rng: np.random.Generat
     return std_nm * total / max(float(np.std(total)), 1e-300)
 
 
-def generate(case: Case) -> GeneratedCase:
-    """Simulate ``case`` on the independent plant (deterministic in its seed)."""
+def _references(case: Case, rng: np.random.Generator) -> References:
+    """The inputs of a recording of ``case``: the excitation's position and speed references
+    and the unrecorded process torque (drawn from ``rng`` in that order)."""
     fam = FAMILIES[case.family]
-    rng = np.random.default_rng(case.seed + SEED_SHIFT)
     cycle = fam.truth.control.position_cycle
     position = reference_profile(fam.excitation, case.duration_s, cycle, rng)
     refs0 = References.from_position(position, cycle)
-    n = len(position)
-    process = process_torque(fam.noise.process_nm, n, cycle, rng)
-    refs = References(refs0.position, refs0.speed, process)
+    process = process_torque(fam.noise.process_nm, len(position), cycle, rng)
+    return References(refs0.position, refs0.speed, process)
+
+
+def generate(case: Case) -> GeneratedCase:
+    """Simulate ``case`` on the independent plant (deterministic in its seed)."""
+    rng = np.random.default_rng(case.seed + SEED_SHIFT)
+    refs = _references(case, rng)
     # the drive's speed filter is a setting the user made, so the axis files state it exactly
     # (the plant simulates with it either way: it is the plant's default)
     drive = {"control.speed_filter": PlantOptions().speed_filter_s}
@@ -85,7 +90,7 @@ def generate(case: Case) -> GeneratedCase:
         truth=truth,
         truth_without=truth_without,
         references=refs,
-        process_nm=process,
+        process_nm=refs.disturbance_nm,
     )
 
 
@@ -113,11 +118,6 @@ def another_recording(gen: GeneratedCase, take: int) -> Trace:
     axis, new moves, a new unrecorded load and new noise."""
     if take < 1:
         raise ValueError(f"take = {take!r}: a second recording is take 1 or more")
-    fam = FAMILIES[gen.case.family]
     rng = np.random.default_rng([gen.case.seed + SEED_SHIFT, take])
-    cycle = fam.truth.control.position_cycle
-    position = reference_profile(fam.excitation, gen.case.duration_s, cycle, rng)
-    refs0 = References.from_position(position, cycle)
-    process = process_torque(fam.noise.process_nm, len(position), cycle, rng)
-    refs = References(refs0.position, refs0.speed, process)
+    refs = _references(gen.case, rng)
     return _recorded(simulator(gen.truth, refs), gen.case, rng)
