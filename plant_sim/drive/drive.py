@@ -1,7 +1,9 @@
-"""The simulated CiA 402 servo drive: a CANopen slave that runs an :class:`AxisPlant`.
+"""The simulated CiA 402 servo drive: a CANopen slave that runs a :class:`plant_sim.plant.Plant`.
 
 The plant is the axis physics plus the drive's own loops (PI speed controller, current loop;
-the paper's Fig. 1 below the position controller, section V). The drive adds what a real
+the paper's Fig. 1 below the position controller, section V): the compiled kernel's
+:class:`~plant_sim.physics.model.AxisPlant` by default, or any FMI 2.0 co-simulation FMU
+(:class:`plant_sim.fmu.FmuPlant`, docs/fmu.md). The drive adds what a real
 servo drive in cyclic synchronous velocity mode (6060h = 9) adds around it: NMT, heartbeat,
 EMCY, the CiA 402 state machine, the PDO exchange on SYNC and its protections.
 
@@ -13,7 +15,12 @@ Per SYNC k (``docs/canopen_layout.md``; lockstep and real time alike):
 2. the TPDOs go out with the values sampled now (t_k);
 3. the physics runs one position cycle: Operation enabled -> speed loop at 60FFh; Quick stop
    active / Fault reaction active -> speed loop on a ramp to zero; every other state ->
-   ``advance_torque(0)`` (power stage off, the axis coasts).
+   ``advance_torque(0)`` (power stage off, the axis coasts; a plant that cannot coast, an
+   FMU with a speed input only, holds a speed set point of zero instead).
+
+A plant that fails while it steps (an FMU call returning an error) faults the drive like a
+device error: EMCY 6100h (internal software) naming the call, Fault, and the plant is not
+stepped again until the drive is reset (NMT reset node does not revive it: a new drive does).
 
 So a set point computed from the measurements of SYNC k acts from SYNC k+1 on: the one-cycle
 PDO delay of ``KernelOptions(setpoint_delay_cycles=1)``. The drive has no clock of its own:
@@ -36,7 +43,6 @@ from types import TracebackType
 
 import can
 import canopen
-import numpy as np
 from canopen.network import NodeScanner
 
 from virtual_bus.contract import (
@@ -53,6 +59,7 @@ from virtual_bus.frame_guard import FrameFault, FrameGuard
 from virtual_bus.framing import NOTHING, FramePort, OutFrame, frame_port
 
 from ..physics.model import AxisPlant
+from ..plant import Plant
 from . import od as O
 from .cia402 import State402
 from .config import DriveConfig, TimeMode
@@ -76,6 +83,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["DriveConfig", "SimulatedDrive", "TimeMode", "warm_up"]
 
+
 #: The services whose COB-IDs canopen's NodeScanner notes a node from.
 _SCANNED = frozenset(NodeScanner.SERVICES)
 # Enum members the per-SYNC code compares with, as module globals: CPython 3.11's EnumType has
@@ -90,17 +98,9 @@ STALE_FRAMES_MAX = 100_000
 
 
 def warm_up(axis: AxisConfig) -> None:
-    """Load (or compile, on an empty numba cache) every compiled function the drive calls:
-    both physics kernels it steps, ``advance`` (Operation enabled, ramps) and
-    ``advance_torque`` (every other state), ``read_measured`` (its measuring systems after
-    each step) and the three measuring systems read one by one for SDO reads of 6064h,
-    606Ch, 60E4h (motor position, motor speed, load position): each is a compiled function
-    of its own, compiled at its first call."""
-    plant = AxisPlant(axis)
-    plant.advance(0.0)
-    plant.advance_torque(0.0)
-    plant.read_measured(np.zeros(4))
-    _ = (plant.motor_position_rad, plant.motor_speed_rad_s, plant.load_position)
+    """Load (or compile, on an empty numba cache) every compiled function a drive of the
+    kernel's plant calls (:meth:`AxisPlant.warm_up`)."""
+    AxisPlant(axis).warm_up()
 
 
 class SimulatedDrive:
@@ -110,8 +110,10 @@ class SimulatedDrive:
         a python-can bus (the drive makes a Network and runs its notifier thread; the bus
         stays the caller's and is not shut down).
     node_id: 1..127 (the contract's default is 2).
-    axis: the axis the plant simulates; plant: an existing plant of that axis (default: a new
-        :class:`AxisPlant` at rest at position 0).
+    axis: the axis the drive is configured from (cycle, k_r, kind, torque limit); plant: the
+        :class:`plant_sim.plant.Plant` it runs, configured from that axis (default: a new
+        :class:`AxisPlant` of the axis at rest at position 0; an FMU's
+        :class:`plant_sim.fmu.FmuPlant`).
 
     Use :meth:`start` / :meth:`stop` or ``with SimulatedDrive(...) as drive:``.
     """
@@ -122,7 +124,7 @@ class SimulatedDrive:
         node_id: int,
         axis: AxisConfig,
         config: DriveConfig | None = None,
-        plant: AxisPlant | None = None,
+        plant: Plant | None = None,
     ) -> None:
         if not isinstance(node_id, int) or not 1 <= node_id <= 127:
             raise DriveConfigError(f"node_id = {node_id!r}: allowed 1..127")
@@ -257,11 +259,11 @@ class SimulatedDrive:
         """Join the bus, finish initialisation (CiA 402 transition 1), send the boot-up
         message and enter NMT Pre-operational with the heartbeat running.
 
-        Like a real drive, it finishes booting before it announces itself: the compiled
-        physics is loaded (numba cache, or compiled on a fresh checkout: seconds) on a
-        throw-away plant first, both kernels (speed loop and power stage off), so neither
-        the first SYNC nor an SDO request waiting behind it is held up by a compilation."""
-        warm_up(self._plant.axis)
+        Like a real drive, it finishes booting before it announces itself: the plant loads
+        what its first step needs first (:meth:`plant_sim.plant.Plant.warm_up`: the compiled
+        kernel's functions from the numba cache, or compiled on a fresh checkout, seconds), so
+        neither the first SYNC nor an SDO request waiting behind it is held up by it."""
+        self._plant.warm_up()
         with self._lock:
             if self._started:
                 raise DriveStateError(f"drive {self.node_id} is already started")
@@ -437,7 +439,7 @@ class SimulatedDrive:
     # harness API
     # ------------------------------------------------------------------------------------------
     @property
-    def plant(self) -> AxisPlant:
+    def plant(self) -> Plant:
         """The simulated axis (read it; stepping it behind the drive's back breaks lockstep)."""
         return self._plant
 

@@ -30,9 +30,10 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ..physics.model import AxisPlant
+from ..plant import Plant
 
 EMCY_NO_ERROR = 0x0000
+EMCY_SOFTWARE = 0x6100  # internal software: the plant (an FMU) failed while it stepped
 EMCY_SENSOR = 0x7300
 EMCY_PDO_LENGTH = 0x8210
 EMCY_SYNC_LENGTH = 0x8240
@@ -53,6 +54,7 @@ class ErrorSpec:
 ERRORS: dict[int, ErrorSpec] = {
     e.code: e
     for e in (
+        ErrorSpec(EMCY_SOFTWARE, ERROR_REGISTER_GENERIC, "the plant (FMU) failed while it stepped"),
         ErrorSpec(EMCY_SENSOR, ERROR_REGISTER_PROFILE, "motor encoder and load scale disagree"),
         ErrorSpec(EMCY_PDO_LENGTH, ERROR_REGISTER_COMMUNICATION, "RPDO shorter than its mapping"),
         ErrorSpec(EMCY_SYNC_LENGTH, ERROR_REGISTER_COMMUNICATION, "SYNC with more than 1 byte"),
@@ -165,12 +167,12 @@ def discrepancy(motor_position_rad: float, load_position: float, ratio: float) -
     return load_position - motor_position_rad / ratio
 
 
-def axis_torque_limit_nm(plant: AxisPlant) -> float:
+def axis_torque_limit_nm(plant: Plant) -> float:
     """The axis file's torque limit (N·m; inf when it has none)."""
     limit = plant.axis.control.torque_limit
     return math.inf if limit is None else limit
 
 
-def apply_torque_limit(plant: AxisPlant, limit_nm: float) -> None:
+def apply_torque_limit(plant: Plant, limit_nm: float) -> None:
     """Set the PI speed controller's output limit (and anti-windup clamp) of ``plant``."""
     plant.set_torque_limit_nm(limit_nm)

@@ -29,7 +29,7 @@ from virtual_bus.contract import (
 )
 from virtual_bus.formats.axis import AxisConfig
 
-from ..physics.model import AxisPlant
+from ..plant import Plant
 from .drive import DriveConfig, SimulatedDrive
 from .node import NmtCommand
 
@@ -155,7 +155,7 @@ def virtual_rig(
     *,
     node_id: int = 2,
     config: DriveConfig | None = None,
-    plant: AxisPlant | None = None,
+    plant: Plant | None = None,
 ) -> Iterator[Rig]:
     """A drive started on a fresh python-can virtual channel with a :class:`BusProbe`;
     everything (drive, notifiers, buses) is stopped at exit and the drive's callback errors

@@ -1,13 +1,20 @@
-"""The CiA 402 device behaviour of the drive around one :class:`AxisPlant`, without the bus.
+"""The CiA 402 device behaviour of the drive around one :class:`Plant`, without the bus.
 
 :class:`ServoAxis` owns the state machine and decides, per position cycle, what the power
 stage does (paper Fig. 1 below the position controller, section V):
 
-- Operation enabled: the plant's PI speed loop follows 60FFh (``AxisPlant.advance``);
+- Operation enabled: the plant's PI speed loop follows 60FFh (``Plant.advance``);
 - Quick stop active / Fault reaction active: the speed loop follows a ramp from the speed at
   entry down to zero (6085h quick stop or 6084h slow down deceleration, per 605Ah / 605Eh;
   option code 0 disables the drive at once), completed at standstill;
-- every other state: power stage off, the axis coasts (``AxisPlant.advance_torque(0)``).
+- every other state: power stage off, the axis coasts (``Plant.advance_torque(0)``; a plant
+  that cannot coast, :attr:`Plant.coasts` false, holds a speed set point of zero instead).
+
+A plant that fails while it steps (:class:`plant_sim.errors.PlantFault`: an FMU call that
+returned an error) faults the drive: EMCY 6100h with the failed call's first bytes, Fault, and
+the plant is not stepped again (a fault reset is refused while it has failed). A plant that
+keeps its own torque limit (:attr:`Plant.limits_torque` false) refuses 6072h writes that would
+change the limit in force.
 
 Acceleration feed-forward (axis file ``control.acceleration_feedforward``, J_ff in kg·m²):
 in CSV mode the drive only sees the speed set point, so it derives the reference
@@ -15,7 +22,7 @@ acceleration from it, τ_ff = J_ff·(ω_set[k] − ω_set[k−1])/T_p, and adds 
 controller's output (as drives do with a speed-set-point interface). Velocity feed-forward
 (``control.velocity_feedforward``) belongs to the position controller, i.e. the master that
 computes 60FFh; the drive does nothing with it. The sensor time offset is physics of the
-measuring systems and is applied by :class:`AxisPlant` (its positions are the readings).
+measuring systems and is applied by the plant (its positions are the readings).
 
 Its supervision runs once per SYNC: the set point watchdog (2102h, reaction 6007h), the
 motor encoder vs load scale monitor (2101h, paper section II.B) and the end of the ramps.
@@ -31,7 +38,8 @@ import numpy as np
 from virtual_bus.contract import SdoAbort
 from virtual_bus.formats.axis import AxisConfig, AxisKind
 
-from ..physics.model import AxisPlant
+from ..errors import PlantFault
+from ..plant import Plant
 from . import od as O
 from .cia402 import (
     SW_FOLLOWS_COMMAND,
@@ -52,6 +60,7 @@ from .protection import (
     EMCY_PDO_LENGTH,
     EMCY_RPDO_TIMEOUT,
     EMCY_SENSOR,
+    EMCY_SOFTWARE,
     ErrorList,
     SetpointWatchdog,
     apply_torque_limit,
@@ -103,7 +112,7 @@ class ServoAxis:
     def __init__(
         self,
         axis: AxisConfig,
-        plant: AxisPlant,
+        plant: Plant,
         table: O.ObjectTable,
         errors: ErrorList,
         config: DriveConfig,
@@ -119,6 +128,7 @@ class ServoAxis:
         self._ramp_done = False
         self._last_setpoint_rad_s = 0.0  # for the acceleration feed-forward
         self._fault_codes: set[int] = set()
+        self.plant_failure: PlantFault | None = None  # the failure that stopped the plant
         #: the plant's readings since its last step (hold_measurements)
         self._held: list[float] | None = None
         self._readings = np.zeros(4)
@@ -192,7 +202,11 @@ class ServoAxis:
         t.on(O.CONTROLWORD, changed=self._controlword_changed)
         t.on(O.MODES_OF_OPERATION, validate=self._check_mode)
         t.on(O.QUICK_STOP_OPTION, validate=self._check_quick_stop_option)
-        t.on(O.MAX_TORQUE, changed=lambda _value: self.apply_torque_limit())
+        t.on(
+            O.MAX_TORQUE,
+            validate=self._check_max_torque,
+            changed=lambda _value: self.apply_torque_limit(),
+        )
 
     def _check_mode(self, value: int) -> None:
         if value != O.MODE_CSV:
@@ -201,6 +215,19 @@ class ServoAxis:
                 f"mode of operation {value} not supported; allowed {O.MODE_CSV} "
                 "(cyclic synchronous velocity)",
                 key=O.MODES_OF_OPERATION,
+            )
+
+    def _check_max_torque(self, value: int) -> None:
+        """A plant with its own torque limit: 6072h may not change the limit in force."""
+        if self.plant.limits_torque:
+            return
+        if value != self._table.stored[O.MAX_TORQUE]:
+            raise DriveSdoAbort(
+                SdoAbort.VALUE_RANGE,
+                f"6072h = {value}: this drive's plant keeps its own torque limit "
+                f"({self.plant.torque_limit_nm:g} N·m); 6072h stays "
+                f"{self._table.stored[O.MAX_TORQUE]}",
+                key=O.MAX_TORQUE,
             )
 
     def _check_quick_stop_option(self, value: int) -> None:
@@ -309,7 +336,12 @@ class ServoAxis:
         """Run the plant one position cycle as the state says (see the module docstring),
         then read its measuring systems for the next SYNC (:meth:`hold_measurements`)."""
         self._held = None
-        coasting = self._step_plant()
+        coasting = False
+        if self.plant_failure is None:
+            try:
+                coasting = self._step_plant()
+            except PlantFault as exc:
+                self._plant_failed(exc)
         self._held = held = self._read_plant()
         if coasting:  # the speed loop follows from where the axis is when it takes over
             self._last_setpoint_rad_s = held[2]
@@ -371,6 +403,16 @@ class ServoAxis:
         elif option == 3:
             self._take(*self.sm.command(Command.QUICK_STOP))
 
+    def _plant_failed(self, exc: PlantFault) -> None:
+        """The plant failed (module docstring): EMCY 6100h, Fault at once (nothing of the
+        axis can be moved any more, so there is no fault reaction ramp to run)."""
+        logger.error("the plant failed: %s", exc)
+        self.plant_failure = exc
+        call = getattr(exc, "call", "") or "step"
+        self._fault(EMCY_SOFTWARE, call.removeprefix("fmi2").encode("ascii", "replace")[:5])
+        if self.sm.state is S.FAULT_REACTION_ACTIVE:
+            self._take(self.sm.event(Event.FAULT_REACTION_COMPLETED))
+
     def _fault(self, code: int, data: bytes = b"") -> None:
         self._errors.set(code, data)
         self._fault_codes.add(code)
@@ -378,6 +420,8 @@ class ServoAxis:
 
     def _fault_cleared(self) -> bool:
         """Fault reset allowed: every cause of the fault is gone."""
+        if self.plant_failure is not None:
+            return False
         for code in self._fault_codes:
             if code == EMCY_SENSOR and not self._encoder_ok():
                 return False

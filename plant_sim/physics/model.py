@@ -25,6 +25,7 @@ from regulator import (
 from virtual_bus.formats.axis import AxisConfig, PositionFeedback
 
 from ..errors import ScenarioError
+from ..plant import Plant
 from . import kernel as K
 
 #: Detector window when only monitoring (no regulator configured): the paper's n.
@@ -185,8 +186,9 @@ def initial_state(axis: AxisConfig, position: float = 0.0) -> np.ndarray:
     return st
 
 
-class AxisPlant:
-    """Mechanics + the drive's inner loops of one axis, stepped one position cycle at a time.
+class AxisPlant(Plant):
+    """Mechanics + the drive's inner loops of one axis, stepped one position cycle at a time,
+    in the compiled kernel (a :class:`plant_sim.plant.Plant` with every capability).
 
     >>> plant = AxisPlant(load_axis("config/paper_axis.toml"))
     >>> plant.advance(speed_setpoint_rad_s=10.0)      # one position cycle (1 ms)
@@ -199,7 +201,7 @@ class AxisPlant:
         options: KernelOptions = KernelOptions(),
         position: float = 0.0,
     ) -> None:
-        self.axis = axis
+        super().__init__(axis)
         self._p = build_params(axis, None, options)
         self._st = initial_state(axis, position)
 
@@ -241,6 +243,18 @@ class AxisPlant:
     def torque_limit_nm(self) -> float:
         return float(self._p[K.P_TAU_LIM])
 
+    def warm_up(self) -> None:
+        """Load (or compile, on an empty numba cache) every compiled function a drive calls, on
+        a throw-away plant of the same axis: ``advance`` (Operation enabled, ramps),
+        ``advance_torque`` (every other state), ``read_measured`` (the measuring systems
+        after each step) and the three readings one by one (SDO reads of 6064h, 606Ch,
+        60E4h): each is a compiled function of its own, compiled at its first call."""
+        plant = AxisPlant(self.axis)
+        plant.advance(0.0)
+        plant.advance_torque(0.0)
+        plant.read_measured(np.zeros(4))
+        _ = (plant.motor_position_rad, plant.motor_speed_rad_s, plant.load_position)
+
     @property
     def time_s(self) -> float:
         return float(self._st[K.S_T])
@@ -276,7 +290,3 @@ class AxisPlant:
         :attr:`motor_torque_nm` into ``out`` (float64, 4 elements) in one compiled call (a
         drive reads them after every step)."""
         K.read_measured(self._p, self._st, out)
-
-    @property
-    def position_cycle_s(self) -> float:
-        return self.axis.control.position_cycle
