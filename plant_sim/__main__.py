@@ -30,6 +30,7 @@ COMMANDS = (
     "force_error",
     "matrix",
     "drive",
+    "fmu_axis",
     "monitor",
     "monitor_bench",
 )

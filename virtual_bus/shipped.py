@@ -28,3 +28,6 @@ PAPER_AXIS = CONFIG_DIR / "paper_axis.toml"
 #: CANopenNode's source), never part of the repository: ``$BACKLASH_SHARED``, else
 #: ``shared/`` next to the checkout. What needs it says so and skips where it is absent.
 SHARED_DIR = Path(os.environ.get("BACKLASH_SHARED") or _CHECKOUT.parents[1] / "shared")
+#: a family of feed axes as an FMI 2.0 co-simulation FMU, written apart from this project
+#: (``shared/plants/README.md``; docs/fmu.md)
+AXIS_FAMILY_FMU = SHARED_DIR / "plants" / "axis_family.fmu"

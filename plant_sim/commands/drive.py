@@ -1,7 +1,10 @@
-"""``python -m plant_sim drive --interface I --channel C --node-id N --axis AXIS.toml``.
+"""``python -m plant_sim drive --interface I --channel C --node-id N --axis AXIS.toml``
+(or ``--fmu FMU [--fmu-param ...]``).
 
 The simulated CiA 402 drive (``docs/drive.md``) as a process of its own on a CAN bus: it
-loads the physics, sends its boot-up message, serves NMT, SDO, SYNC (one position cycle of
+loads the physics (the compiled kernel of the axis file, or an FMU as the plant with the
+axis file or its data sheet as the drive's configuration, docs/fmu.md), sends its boot-up
+message, serves NMT, SDO, SYNC (one position cycle of
 the physics per SYNC) and PDOs until SIGINT or SIGTERM, then leaves the bus, closes it and
 exits 0. Output: one line when the boot-up is out, one line at the end. Bad arguments or
 files: one line, exit 2; a real-time option the OS refuses: one line, exit 1.
@@ -28,13 +31,13 @@ from types import FrameType
 
 from virtual_bus import BusConfig, VirtualBusError, cli, open_bus
 from virtual_bus.config import CIA301_BITRATES, DEFAULT_BITRATE
-from virtual_bus.formats.axis import load_axis
 from virtual_bus.realtime import add_realtime_options, realtime_options
 
 from ..drive.config import DriveConfig, TimeMode
 from ..drive.drive import SimulatedDrive
 from ..drive.errors import DriveConfigError
 from ..drive.process import DriveProcessConfig, serve
+from ..fmu.arguments import add_fmu_arguments, axis_source
 
 NAME = "drive"
 HELP = (
@@ -59,7 +62,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--node-id", type=cli.node_id, default=2, help="the drive's node-ID, 1..127 (default 2)"
     )
-    parser.add_argument("--axis", type=Path, required=True, metavar="AXIS.toml", help="axis file")
+    parser.add_argument(
+        "--axis",
+        type=Path,
+        metavar="AXIS.toml",
+        help="axis file (with --fmu: the drive's configuration; default the FMU's data sheet)",
+    )
     parser.add_argument(
         "--bitrate",
         type=int,
@@ -79,6 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="reserved for drive profiles (config/drives/*.toml); not read by this drive yet",
     )
     add_realtime_options(parser)
+    add_fmu_arguments(parser)
 
 
 def check_drive_profile(path: Path | None) -> None:
@@ -102,12 +111,17 @@ def check_drive_profile(path: Path | None) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_drive_profile(args.drive_profile)
-    axis = load_axis(args.axis)
+    source = axis_source(args, args.axis)
+    axis = source.axis
     rt = realtime_options(args)
     try:
         bus_config = BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate)
         config = DriveProcessConfig(
-            axis, args.node_id, DriveConfig(time_mode=CLOCKS[args.clock]), realtime=rt
+            axis,
+            args.node_id,
+            DriveConfig(time_mode=CLOCKS[args.clock]),
+            realtime=rt,
+            fmu=source.fmu,
         )
         bus = open_bus(bus_config)
     except VirtualBusError as exc:
@@ -123,6 +137,8 @@ def run(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
 
     options = f"; real time: {rt.describe()}" if rt.any else ""
+    if source.fmu is not None:
+        options += f"; plant: FMU {source.fmu.describe()}"
 
     def ready(drive: SimulatedDrive) -> None:
         print(

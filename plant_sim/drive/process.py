@@ -39,6 +39,8 @@ from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.framing import NOTHING
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
+from ..fmu.model import FmuSpec
+from ..plant import Plant
 from .cia402 import State402
 from .config import DriveConfig, TimeMode
 from .drive import SimulatedDrive
@@ -58,7 +60,9 @@ class DriveProcessConfig:
     check_interval_s: how often :func:`serve` looks for a failed bus callback and ``stop`` (s);
     realtime: the process's real-time options (applied by :func:`serve`; all off by default);
     sync_poll_lead_s: with ``realtime.busy_poll``, the bus is polled from this long before
-    the next SYNC is due until this long after (None: :func:`default_sync_poll_lead_s`).
+    the next SYNC is due until this long after (None: :func:`default_sync_poll_lead_s`);
+    fmu: an FMU as the plant (None: the compiled kernel of ``axis``), made when the drive
+    is built.
     """
 
     axis: AxisConfig
@@ -67,6 +71,7 @@ class DriveProcessConfig:
     check_interval_s: float = 0.2
     realtime: RealTimeOptions = field(default_factory=RealTimeOptions)
     sync_poll_lead_s: float | None = None
+    fmu: FmuSpec | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.node_id, int) or not 1 <= self.node_id <= 127:
@@ -81,6 +86,14 @@ class DriveProcessConfig:
             raise DriveConfigError(
                 f"sync_poll_lead_s = {lead}: allowed (0, {half:g}] s (half the position cycle)"
             )
+
+    def make_plant(self) -> Plant | None:
+        """The FMU's plant at rest at 0, or None for the kernel's (the drive makes it)."""
+        if self.fmu is None:
+            return None
+        from ..fmu import FmuPlant
+
+        return FmuPlant(self.fmu, self.axis, 0.0, f"drive{self.node_id}")
 
     @property
     def poll_lead_s(self) -> float:
@@ -210,7 +223,31 @@ def serve(
     a real-time option the OS refuses raises :class:`~virtual_bus.errors.RealTimeRefused`.
     The bus is not shut down.
     """
-    drive = SimulatedDrive(bus, config.node_id, config.axis, config.drive)
+    plant = config.make_plant()
+    try:
+        return _serve(
+            config,
+            bus,
+            stop,
+            SimulatedDrive(bus, config.node_id, config.axis, config.drive, plant),
+            ready,
+            wall,
+            epoch,
+        )
+    finally:
+        if plant is not None:
+            plant.close()
+
+
+def _serve(
+    config: DriveProcessConfig,
+    bus: can.BusABC,
+    stop: threading.Event,
+    drive: SimulatedDrive,
+    ready: Callable[[SimulatedDrive], None] | None,
+    wall: Callable[[], float],
+    epoch: Callable[[], float],
+) -> ServeResult:
     drive.start()
     gc_control = GcBetweenCycles() if config.realtime.freeze_gc else None
     counts = LoopCounts()
