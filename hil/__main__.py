@@ -19,7 +19,7 @@ from regulator.errors import RegulatorError
 from virtual_bus import cli
 
 PROG = "python -m hil"
-COMMANDS = ("demo", "bench", "tune", "freqresp")
+COMMANDS = ("demo", "bench", "tune", "freqresp", "sweep")
 DESCRIPTION = (
     "Hardware in the loop without hardware: the bridge (python -m bridge) closing the loop "
     "over CANopen against the simulated CiA 402 drive (python -m plant_sim drive)."

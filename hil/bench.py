@@ -14,6 +14,7 @@ without a complete TPDO set, CPU time per cycle.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
@@ -23,6 +24,7 @@ from typing import Any
 
 from bridge.cycle import BridgeState
 from bridge.params import BridgeParams
+from plant_sim.fmu.arguments import AxisSource
 from plant_sim.paper.scenarios import SectionX
 from regulator import RegulatorConfig
 from virtual_bus.errors import RealTimeRefused
@@ -38,13 +40,18 @@ def _params(axis: AxisConfig) -> BridgeParams:
     return BridgeParams.for_axis(axis, reg)
 
 
-def lockstep_run(axis: AxisConfig, cycles: int, record: bool) -> dict[str, float]:
-    """Section X (first ``cycles`` cycles; feed until 6 s) over the virtual bus, lockstep."""
+def lockstep_run(
+    axis: AxisConfig, cycles: int, record: bool, source: AxisSource | None = None
+) -> dict[str, float]:
+    """Section X (first ``cycles`` cycles; feed until 6 s) over the virtual bus, lockstep;
+    ``source``: the drive's plant (default the compiled kernel of ``axis``; an FMU)."""
     cycle_s = axis.control.position_cycle
     end_s = cycles * cycle_s
     scenario = SectionX(end_s=end_s, stop_s=min(SectionX.stop_s, end_s))
     refs = scenario.references(axis)
+    plant = None if source is None or source.model is None else source.plant()
     with (
+        contextlib.closing(plant) if plant is not None else contextlib.nullcontext(),
         tempfile.TemporaryDirectory() as tmp,
         simulated_axis(
             axis,
@@ -53,6 +60,7 @@ def lockstep_run(axis: AxisConfig, cycles: int, record: bool) -> dict[str, float
             keep_trace=False,
             disturbance=refs.disturbance_nm if record else None,
             bus_log_path=Path(tmp) / "bus.log" if record else None,
+            plant=plant,
         ) as sim,
     ):
         cpu0 = time.process_time()
@@ -155,7 +163,10 @@ def run_bench(
     drive_cpu: int | None = None,
     host_beside: bool = True,
     socketcan: str | None = None,
+    fmu: AxisSource | None = None,
 ) -> dict[str, object]:
+    """Every figure of ``hil bench`` (module docstring); ``fmu``: lockstep also with this FMU as
+    the drive's plant, in the same run as the kernel's (``lockstep_fmu``)."""
     results: dict[str, object] = {}
     rt = rt or RealTimeOptions()
     if socketcan is not None:  # two processes on the interface: no namespace, no root
@@ -172,6 +183,17 @@ def run_bench(
                 f"{r['cycles_per_s']:.0f} cycles/s (paper's 6 s at 1 ms in "
                 f"{6000 / r['cycles_per_s']:.2f} s), CPU {r['cpu_us_per_cycle']:.0f} µs/cycle, "
                 f"missed TPDOs {r['missed_tpdos']}"
+            )
+        if fmu is not None:
+            r = lockstep_run(fmu.axis, cycles, False, fmu)
+            results["lockstep_fmu"] = r
+            what = fmu.fmu.describe() if fmu.fmu else fmu.name
+            print(
+                f"lockstep_fmu: {r['cycles']} cycles in {r['wall_s']:.3f} s = "
+                f"{r['cycles_per_s']:.0f} cycles/s with the FMU {what} as the drive's "
+                f"plant (the kernel's in the same run: "
+                f"{results['lockstep']['cycles_per_s']:.0f}), CPU "  # type: ignore[index]
+                f"{r['cpu_us_per_cycle']:.0f} µs/cycle, missed TPDOs {r['missed_tpdos']}"
             )
         ref = reference_run(axis)
         results["reference"] = ref

@@ -33,6 +33,7 @@ from bridge.recorder import BusLog, TraceRecorder, log_channel
 from bridge.timing import DEFAULT_LOCKSTEP_WAIT_S, LockstepPacer, Pacer, RealTimePacer, TimeMode
 from plant_sim.drive import DriveConfig, SimulatedDrive
 from plant_sim.physics.simulate import References
+from plant_sim.plant import Plant
 from virtual_bus import BusConfig, FaultConfig, FaultInjectingBus, Interface, open_bus
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.trace import Trace
@@ -77,6 +78,7 @@ def simulated_axis(
     configure_drive: bool = True,
     wrap_bridge_bus: Callable[[can.BusABC], can.BusABC] | None = None,
     inline_drive: bool = True,
+    plant: Plant | None = None,
 ) -> Iterator[SimulatedAxis]:
     """Bridge + simulated drive of ``axis`` on one bus, started (see the module docstring).
 
@@ -88,7 +90,8 @@ def simulated_axis(
     inline_drive: lockstep on the in-process virtual bus only: after start-up the drive
     receives in the loop's thread (:meth:`SimulatedDrive.polled`), the frames still going over
     the bus. On vcan0 a frame reaches the other socket asynchronously, so there the drive keeps
-    its own thread.
+    its own thread. plant: what the drive runs (default: the compiled kernel of ``axis``; an
+    FMU's :class:`plant_sim.fmu.FmuPlant`), the caller's to close.
     """
     if interface is Interface.AUTO:
         raise ValueError("simulated_axis needs Interface.VIRTUAL or Interface.SOCKETCAN")
@@ -120,7 +123,7 @@ def simulated_axis(
         bus_log = None
         if bus_log_path is not None:
             bus_log = BusLog(bus_log_path, channel=log_channel(bus_config))
-        drive = SimulatedDrive(drive_bus, bridge_config.drive_id, axis, drive_config)
+        drive = SimulatedDrive(drive_bus, bridge_config.drive_id, axis, drive_config, plant)
         bridge = Bridge(
             bridge_bus,
             params,
@@ -189,6 +192,7 @@ def run_references(
     trace_path: Path | None = None,
     bus_log_path: Path | None = None,
     fault: FaultConfig | None = None,
+    plant: Plant | None = None,
 ) -> ReferenceRun:
     """:func:`play_references` in a fresh :func:`simulated_axis` (lockstep)."""
     with simulated_axis(
@@ -199,5 +203,6 @@ def run_references(
         trace_path=trace_path,
         disturbance=refs.disturbance_nm,
         bus_log_path=bus_log_path,
+        plant=plant,
     ) as sim:
         return play_references(sim, refs)

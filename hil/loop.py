@@ -6,37 +6,26 @@ read at t_k; eq. 7 on the load scale with the velocity feed-forward, ``omega_c =
 :class:`regulator.BacklashRegulator` (or omega_c unchanged with the regulator off); the set
 point computed at SYNC k takes effect at SYNC k+1 (the PDO delay). The plant is anything with
 ``advance(speed_setpoint_rad_s, disturbance_nm)`` and the readings ``motor_position_rad``,
-``motor_speed_rad_s``, ``load_position``, ``motor_torque_nm``: the compiled kernel's
-:class:`plant_sim.physics.model.AxisPlant`, or the tests' independent plant.
+``motor_speed_rad_s``, ``load_position``, ``motor_torque_nm``
+(:class:`plant_sim.plant.SteppedAxis`): the compiled kernel's
+:class:`plant_sim.physics.model.AxisPlant`, an FMU's :class:`plant_sim.fmu.FmuPlant`, or the
+tests' independent plant.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Protocol
 
 import numpy as np
 
 from bridge.commission.session import Recording
+from plant_sim.plant import SteppedAxis
 from regulator import BacklashRegulator, PositionController, RegulatorConfig
 from regulator.tuning import Record, SafetyLimits, safety_stop
 
-
-class Plant(Protocol):
-    def advance(self, speed_setpoint_rad_s: float, disturbance_nm: float = 0.0) -> None: ...
-
-    @property
-    def motor_position_rad(self) -> float: ...
-
-    @property
-    def motor_speed_rad_s(self) -> float: ...
-
-    @property
-    def load_position(self) -> float: ...
-
-    @property
-    def motor_torque_nm(self) -> float: ...
+#: What the loop closes around (:class:`plant_sim.plant.SteppedAxis`).
+Plant = SteppedAxis
 
 
 def run_loop(
@@ -97,15 +86,15 @@ def trial_runner(
             tf_s=base.tf_s,
             enabled=beta_t is not None,
         )
-        trace = run_loop(
-            make_plant(float(position[0])),
-            position,
-            speed,
-            kr,
-            config,
-            velocity_feedforward,
-            disturbance_nm,
-        )
+        plant = make_plant(float(position[0]))
+        try:
+            trace = run_loop(
+                plant, position, speed, kr, config, velocity_feedforward, disturbance_nm
+            )
+        finally:
+            close = getattr(plant, "close", None)
+            if close is not None:
+                close()
         record = trace.record()
         return replace(record, stopped=safety_stop(record, safety))
 

@@ -19,6 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from bridge.commission.freqresp import ExcitationPlan, FrequencyResponse
+from plant_sim.fmu.arguments import AxisSource
 from plant_sim.physics.model import AxisPlant, KernelOptions
 from plant_sim.physics.simulate import References, simulate
 from regulator import RegulatorConfig
@@ -26,7 +27,7 @@ from regulator.frequency_response import antiresonance, bandwidth
 from regulator.tuning import MotionProfile, Record, SafetyLimits, TuningError, safety_stop
 from virtual_bus.formats.axis import AxisConfig
 
-from .loop import Plant, run_loop
+from .loop import Plant, run_loop, trial_runner
 
 
 def base_regulator(axis: AxisConfig) -> RegulatorConfig:
@@ -108,6 +109,30 @@ def frequency_response(
 
 def kernel_plant(axis: AxisConfig) -> Callable[[float], AxisPlant]:
     return lambda start: AxisPlant(axis, position=start)
+
+
+def plant_runner(
+    source: AxisSource,
+    profile: MotionProfile,
+    safety: SafetyLimits,
+    disturbance_nm: np.ndarray | None = None,
+) -> Callable[[float | None], Record]:
+    """Trials on the source's plant: the compiled kernel's closed loop
+    (:func:`kernel_runner`), or the bridge's loop (:func:`hil.loop.trial_runner`) around a
+    fresh instance of the FMU per trial."""
+    axis = source.axis
+    if source.model is None:
+        return kernel_runner(axis, profile, safety, disturbance_nm)
+    return trial_runner(
+        source.plant,
+        profile.position,
+        profile.speed,
+        axis.transmission_ratio,
+        base_regulator(axis),
+        safety,
+        axis.control.velocity_feedforward or 0.0,
+        disturbance_nm,
+    )
 
 
 def analytic_loop(axis: AxisConfig, frequency_hz: np.ndarray) -> np.ndarray | None:

@@ -10,12 +10,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from plant_sim.fmu.arguments import add_fmu_arguments, fmu_spec
 from virtual_bus import cli
 from virtual_bus.progress import Progress
 from virtual_bus.realtime import add_realtime_options, cpu_number, realtime_options
 from virtual_bus.shipped import PAPER_AXIS
 
-from .common import simulated_axis_file
+from .common import simulated_axis_file, simulated_source
 
 NAME = "bench"
 HELP = "lockstep cycles per second and real-time latency"
@@ -67,6 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--cpu where cyclictest is installed: the host's floor in the same run)",
     )
     add_realtime_options(parser)
+    add_fmu_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,6 +81,12 @@ def run(args: argparse.Namespace) -> int:
             "--socketcan runs the drive as its own process; not with --drive thread"
         )
     axis = simulated_axis_file(args.axis)  # refused before anything is said or run
+    fmu = fmu_spec(args)
+    fmu_source = None
+    if fmu is not None:  # beside the kernel's axis: its own data sheet configures the bridge
+        if args.skip_lockstep:
+            raise cli.UsageError("--fmu is measured in lockstep; not with --skip-lockstep")
+        fmu_source = simulated_source(argparse.Namespace(**vars(args) | {"axis": None}), None)
     rt = realtime_options(args)
     progress = Progress(f"bridge {NAME}", quiet=args.quiet)
     stages = []
@@ -99,5 +107,6 @@ def run(args: argparse.Namespace) -> int:
         drive_cpu=args.drive_cpu,
         host_beside=not args.no_host_latency,
         socketcan=args.socketcan,
+        fmu=fmu_source,
     )
     return 0

@@ -1,28 +1,33 @@
-"""``python -m hil demo --out DIR``: the paper's section X over the bus (hil/demo.py)."""
+"""``python -m hil demo --out DIR [--fmu FMU --fmu-param ...]``: the paper's section X over
+the bus (hil/demo.py)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from bridge.commands.common import regulated_axis
+from plant_sim.fmu.arguments import add_fmu_arguments
 from virtual_bus import Interface, cli
 from virtual_bus.progress import Progress
-from virtual_bus.shipped import PAPER_AXIS
+
+from .common import simulated_source
 
 NAME = "demo"
 HELP = "the paper's section X over the bus with the simulated drive"
 DESCRIPTION = (
     "Runs section X (Fig. 8 and Fig. 9) with the bridge closing the loop over CANopen against "
     "the simulated drive; writes the summary.json and figures of `python -m plant_sim paper`, "
-    "the traces and the bus logs."
+    "the traces and the bus logs. With --fmu the drive's plant is the FMU (its data sheet "
+    "configures the bridge unless --axis is given)."
 )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
     parser.add_argument(
-        "--axis", type=Path, default=PAPER_AXIS, help="axis file (default config/paper_axis.toml)"
+        "--axis",
+        type=Path,
+        help="axis file (default config/paper_axis.toml; with --fmu, the FMU's data sheet)",
     )
     parser.add_argument(
         "--bus",
@@ -30,14 +35,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="virtual",
         help="virtual (default) or socketcan on vcan0",
     )
+    add_fmu_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..demo import print_summary, run_demo
 
-    axis = regulated_axis(args.axis)
+    source = simulated_source(args, args.axis)
     interface = Interface.VIRTUAL if args.bus == "virtual" else Interface.SOCKETCAN
     progress = Progress(f"bridge {NAME}", quiet=args.quiet)
-    summary = run_demo(args.out, axis, str(args.axis), interface, progress)
+    summary = run_demo(args.out, source.axis, source.name, interface, progress, source)
     print_summary(summary, args.out)
     return 0

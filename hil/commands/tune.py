@@ -8,15 +8,15 @@ import sys
 from bridge.commands.tune import add_tuning_arguments, options_from, trial_line, write_report
 from virtual_bus import cli
 
-from .common import add_axis_and_out, simulated_axis_file
+from .common import add_axis_and_out, simulated_source
 
 NAME = "tune"
 HELP = "find beta_T by the paper's procedure on the simulated axis (offline, fast)"
 DESCRIPTION = (
     "The same test motion, trials, verdicts and search as `python -m bridge tune`, on the "
-    "compiled kernel of the axis file with the bridge's one-cycle PDO delay and its safety "
-    "limits (2008h, 2014h, --torque-limit) checked on every cycle. Report: tune.json, "
-    "trials.png. Exit 1 with the reason when no beta_T is found."
+    "compiled kernel of the axis file (or an FMU's plant, --fmu) with the bridge's one-cycle "
+    "PDO delay and its safety limits (2008h, 2014h, --torque-limit) checked on every cycle. "
+    "Report: tune.json, trials.png. Exit 1 with the reason when no beta_T is found."
 )
 
 
@@ -34,16 +34,17 @@ def run(args: argparse.Namespace) -> int:
     from bridge.params import BridgeParams
     from regulator.tuning import Outcome, TuningError, search
 
-    from ..offline import base_regulator, kernel_runner, safety_of
+    from ..offline import base_regulator, plant_runner, safety_of
 
-    axis = simulated_axis_file(args.axis)
+    source = simulated_source(args, args.axis)
+    axis = source.axis
     options = options_from(args)
     bridge_params = BridgeParams.for_axis(axis, base_regulator(axis))
     limit = args.following_error_limit or bridge_params.following_error_limit
     cycle_s, kv = axis.control.position_cycle, axis.control.kv
     profile = options.motion.profile(cycle_s, kv).repeated(options.repeats)
     safety = safety_of(axis, limit, options.torque_limit)
-    runner = kernel_runner(axis, profile, safety)
+    runner = plant_runner(source, profile, safety)
     try:
         result = search(
             runner,
@@ -58,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     except TuningError as exc:
         print(f"python -m hil tune: {exc}", file=sys.stderr)
         return 1
-    write_report(result, cycle_s, args.out, {"axis": str(args.axis)})
+    write_report(result, cycle_s, args.out, {"axis": source.name})
     if result.outcome is not Outcome.FOUND:
         print(f"python -m hil tune: {result.reason}", file=sys.stderr)
         return 1

@@ -228,8 +228,11 @@ def mark_end(recorder: Program, channel: str = "vcan0") -> list[Frame]:
     return frames[:end]
 
 
-def drive_process(axis_file: Path, clock: str, channel: str = "vcan0") -> Program:
-    """``python -m plant_sim drive`` on ``channel``, after its boot-up message."""
+def drive_process(
+    axis_file: Path | None, clock: str, channel: str = "vcan0", extra: Sequence[str] = ()
+) -> Program:
+    """``python -m plant_sim drive`` on ``channel``, after its boot-up message; ``extra``:
+    more options (``--fmu FMU --fmu-param ...``; then ``axis_file`` may be None)."""
     drive = Program(
         [
             sys.executable,
@@ -240,10 +243,10 @@ def drive_process(axis_file: Path, clock: str, channel: str = "vcan0") -> Progra
             "socketcan",
             "--channel",
             channel,
-            "--axis",
-            str(axis_file),
+            *(["--axis", str(axis_file)] if axis_file is not None else []),
             "--clock",
             clock,
+            *extra,
         ],
         "drive",
     )
