@@ -343,6 +343,20 @@ class Bench:
     needs: str = ""
 
 
+#: The shared FMU family's seed 0 with a large free play (shared/plants/README.md).
+FMU_SEED0 = ("--fmu", "{shared}/plants/axis_family.fmu", "--fmu-param", "seed=0,family=1")
+
+
+def _args(args: Sequence[str], out: str) -> list[str]:
+    """A bench's arguments with ``{out}`` and ``{shared}`` (the third-party folder) filled."""
+    shared = os.environ.get("BACKLASH_SHARED") or str(ROOT.parent / "shared")
+    return [a.replace("{out}", out).replace("{shared}", shared) for a in args]
+
+
+def _shown(args: Sequence[str]) -> str:
+    return " ".join(a.replace("{out}", "DIR").replace("{shared}", "../shared") for a in args)
+
+
 def _benches(realtime_s: float) -> tuple[Bench, ...]:
     wall = Figure("wall time of the command", "wall_s", "s")
     rt = f"real time {realtime_s:g} s"
@@ -426,6 +440,51 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
             ),
         ),
         Bench(
+            "bridge-demo-fmu",
+            ("hil", "demo", "--out", "{out}", *FMU_SEED0),
+            "summary.json",
+            (
+                Figure(
+                    "FMU axis over the bus: Fig. 8 limit-cycle frequency",
+                    "runs.ordinary.dominant_frequency_hz",
+                    "Hz",
+                ),
+                Figure("FMU axis over the bus: p2p reduction", "p2p_reduction", "%", 100.0),
+                wall,
+            ),
+        ),
+        Bench(
+            "fmu-sweep",
+            (
+                "hil",
+                "sweep",
+                "limit-cycle",
+                "--fmu",
+                "{shared}/plants/axis_family.fmu",
+                "--fmu-param",
+                "family=1",
+                "--seeds",
+                "1000-1199",
+                "--out",
+                "{out}/sweep",
+            ),
+            "sweep/summary.json",
+            (
+                Figure(
+                    "sweep of 200 FMU axes (family 1): with a sustained limit cycle",
+                    "figures.with a sustained limit cycle",
+                    "axes",
+                ),
+                Figure(
+                    "sweep: of them cut by >= 90 % by the default β_T",
+                    "figures.of them cut by >= 90 % by the default beta_T",
+                    "axes",
+                ),
+                Figure("sweep: time per axis in a worker", "seconds_per_seed.median", "s"),
+                wall,
+            ),
+        ),
+        Bench(
             "emps-diagnose",
             (
                 "plant_sim",
@@ -474,10 +533,23 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
         ),
         Bench(
             "bridge-bench",
-            ("hil", "bench", "--seconds", f"{realtime_s:g}", "--json", "{out}/bench.json"),
+            (
+                "hil",
+                "bench",
+                "--seconds",
+                f"{realtime_s:g}",
+                "--json",
+                "{out}/bench.json",
+                *FMU_SEED0,
+            ),
             "bench.json",
             (
                 Figure("lockstep, full stack", "lockstep.cycles_per_s", "cycles/s"),
+                Figure(
+                    "lockstep, the FMU's axis (seed 0, family 1) as the drive's plant, same run",
+                    "lockstep_fmu.cycles_per_s",
+                    "cycles/s",
+                ),
                 Figure(
                     "lockstep with trace and bus log", "lockstep_recording.cycles_per_s", "cycles/s"
                 ),
@@ -619,11 +691,11 @@ def _run_bench(bench: Bench, quiet: bool) -> dict[str, float | None]:
         return {f.label: None for f in bench.figures}
     with tempfile.TemporaryDirectory(prefix="dev-bench-") as tmp:
         for setup in bench.setup:
-            cmd = [str(PY), "-m", *(a.replace("{out}", tmp) for a in setup), "--quiet"]
+            cmd = [str(PY), "-m", *_args(setup, tmp), "--quiet"]
             if subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL).returncode != 0:
                 _say(f"`{' '.join(setup)}` failed: {bench.name} left out", quiet)
                 return {f.label: None for f in bench.figures}
-        args = [a.replace("{out}", tmp) for a in bench.args]
+        args = _args(bench.args, tmp)
         cmd = [str(PY), "-m", *args, *(["--quiet"] if quiet else [])]
         t0 = time.perf_counter()
         done = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL)
@@ -654,7 +726,7 @@ def _table(rows: list[tuple[Bench, Figure, list[float | None]]], runs: int, note
             if got
             else ["-", "-", "-"]
         )
-        command = " ".join(a.replace("{out}", "DIR") for a in bench.args)
+        command = _shown(bench.args)
         lines.append(f"| {fig.label} | {' | '.join(cells)} | {fig.unit} | `{command}` |")
     return "\n".join(lines)
 
@@ -705,7 +777,7 @@ def bench(argv: Sequence[str], quiet: bool, run: Callable[[Bench, bool], dict] =
             step += 1
             _say(
                 f"[{time.monotonic() - t0:6.0f} s] {step}/{total}: python -m "
-                + " ".join(a.replace("{out}", "DIR") for a in b.args)
+                + _shown(b.args)
                 + f" (run {i + 1} of {args.runs})",
                 quiet,
             )
