@@ -29,36 +29,42 @@ cycle's arithmetic is one call of a few thousand instructions instead of some 90
 from __future__ import annotations
 
 import importlib.util
-import math
 import types
 from collections.abc import Callable
 from typing import Any
 
 from regulator import core as rcore
+from regulator import cycle as rcycle
 
-# --- the vector: parameters, then state, then the raw values of the frames -------------------
+# --- the vector: the cycle block, parameters, state, the raw values of the frames ------------
+# The cycle block of regulator.cycle first (its parameters and results are the cycle's own):
+P_KR = rcycle.C_KR  # k_r, motor rad per load unit
+P_KV = rcycle.C_KV  # k_v, 1/s
+P_VFF = rcycle.C_VFF  # k_vff (200Bh)
+P_REG_ON = rcycle.C_REG_ON  # 2001h: 1.0 eq. 15 in the loop
+P_REG_N = rcycle.C_REG_N  # detector window n (n + 1 samples)
+P_CYCLE = rcycle.C_CYCLE  # s, the position cycle
+P_REG_TV = rcycle.C_REG_TV  # s, T_v
+P_REG_TF = rcycle.C_REG_TF  # s, T_f
+P_REG_BT = rcycle.C_REG_BT  # rad/s, beta_T
+P_SPEED_LIMIT = rcycle.C_SPEED_LIMIT  # 2007h, rad/s
+P_FE_LIMIT = rcycle.C_FE_LIMIT  # 2008h, load units
+P_DISC_LIMIT = rcycle.C_DISC_LIMIT  # 2009h, load units
+P_POS_MIN = rcycle.C_POS_MIN  # 2014h:01
+P_POS_MAX = rcycle.C_POS_MAX  # 2014h:02
+S_OMEGA_S = rcycle.Y_OMEGA_S  # rad/s
+S_OMEGA_C = rcycle.Y_OMEGA_C  # rad/s
+S_OMEGA_R = rcycle.Y_OMEGA_R  # rad/s, the set point
+S_LAMBDA = rcycle.Y_LAMBDA  # eq. 15
+S_FOLLOWING_ERROR = rcycle.Y_ERROR  # load units
 (
     P_RAD_PER_INC,  # motor rad per 6064h increment
     P_UNIT_PER_INC,  # load units per load-position increment
     P_NM_PER_PERMILLE,  # N·m per 6077h unit
     P_RAD_S_PER_UNIT,  # rad/s per 606Ch unit
     P_UNITS_PER_RAD_S,  # 60FFh units per rad/s
-    P_CYCLE,  # s, the position cycle
-    P_KR,  # k_r, motor rad per load unit
-    P_KV,  # k_v, 1/s
     P_LOAD_MEASURED,  # 1.0: the layout carries a load position, 0.0: feedback = motor / k_r
-    P_VFF,  # k_vff (200Bh)
-    P_FE_LIMIT,  # 2008h, load units
-    P_DISC_LIMIT,  # 2009h, load units
-    P_POS_MIN,  # 2014h:01
-    P_POS_MAX,  # 2014h:02
-    P_SPEED_LIMIT,  # 2007h, rad/s
     P_PDO_TOLERANCE,  # 200Ah, cycles
-    P_REG_ON,  # 2001h: 1.0 eq. 15 in the loop
-    P_REG_N,  # detector window n + 1
-    P_REG_TV,  # s, T_v
-    P_REG_TF,  # s, T_f
-    P_REG_BT,  # rad/s, beta_T
     P_POS_FRAME,  # bit of the frame carrying the motor position
     P_LOAD_FRAME,  # bit of the frame carrying the load position (the position frame's if none)
     P_STATUS_FRAME,  # bit of the frame carrying the statusword
@@ -74,20 +80,15 @@ from regulator import core as rcore
     S_CONSECUTIVE_MISSED,  # cycles in a row without a complete set
     S_MISSED_CYCLES,  # cycles without a complete set
     S_POSITION_REFERENCE,  # x_ref, load units
-    S_OMEGA_S,  # rad/s
-    S_OMEGA_C,  # rad/s
-    S_OMEGA_R,  # rad/s, the set point
-    S_FOLLOWING_ERROR,  # load units
     S_DIFFERENCE,  # motor - load since enable, load units
     S_DIFFERENCE_AT_ENABLE,  # load units
-    S_LAMBDA,  # eq. 15
     R_MOTOR_POSITION,  # the raw values of the frames (integers)
     R_LOAD_POSITION,
     R_STATUSWORD,
     R_TORQUE,
     R_MOTOR_VELOCITY,
     V_SIZE,
-) = range(49)
+) = range(rcycle.BLOCK_SIZE, rcycle.BLOCK_SIZE + 30)
 
 #: Raw value index of each :class:`bridge.layout.Signal` value (the CiA 402 object).
 RAW_INDEX = {0x6064: R_MOTOR_POSITION, 0x60E4: R_LOAD_POSITION, 0x6041: R_STATUSWORD}
@@ -97,13 +98,13 @@ RAW_INDEX |= {0x6077: R_TORQUE, 0x606C: R_MOTOR_VELOCITY}
 OPERATION_ENABLED_MASK = 0x6F
 OPERATION_ENABLED_BITS = 0x27
 
-# --- codes ---------------------------------------------------------------------------------------
-OK = 0  # the set point is computed (value returned)
+# --- codes (regulator.cycle's, and the bridge's own two) ------------------------------------
+OK = rcycle.OK  # the set point is computed (value returned)
 SUPERVISION = 1  # PDO loss or the drive left Operation Enabled: the controller stops the axis
-FOLLOWING_ERROR = 2  # 2008h exceeded (values stored)
-DISCREPANCY = 3  # 2009h exceeded
-POSITION_LIMIT = 4  # outside 2014h and not heading back
-NOT_FINITE = 5  # a non-finite input of eq. 7 or eq. 15: the controller raises
+FOLLOWING_ERROR = rcycle.FOLLOWING_ERROR  # 2008h exceeded (values stored)
+DISCREPANCY = rcycle.DISCREPANCY  # 2009h exceeded
+POSITION_LIMIT = rcycle.POSITION_LIMIT  # outside 2014h and not heading back
+NOT_FINITE = rcycle.NOT_FINITE  # a non-finite input of eq. 7 or eq. 15: the controller raises
 OUT_OF_RANGE = 6  # the set point does not fit 60FFh (INTEGER32): the controller's pack raises
 
 INT32_LIMIT = 2.0**31
@@ -146,47 +147,18 @@ def measure(v: Any, frames: int) -> None:
 
 def running(v: Any, det: Any, x_ref: float, speed: float) -> tuple[int, int]:
     """Steps 4 and 5 of a running axis with the interpolator's ``x_ref`` and ``speed`` (load
-    units, load units/s): (code, set point in 60FFh units). The limits are checked on
-    measured cycles only; a code other than :data:`OK` leaves the regulator untouched."""
+    units, load units/s): the cycle of :func:`regulator.cycle.position_cycle` on the load
+    feedback, its limits checked on measured cycles only; (code, set point in 60FFh units).
+    A code other than :data:`OK` leaves the regulator untouched."""
     x_l = v[S_LOAD_POSITION]
-    if not (math.isfinite(x_ref) and math.isfinite(x_l)):
-        return NOT_FINITE, 0
-    kr = v[P_KR]
-    omega_s = kr * speed
-    # eq. 7, plus the velocity feed-forward of the axis file (200Bh; 0 in the paper)
-    omega_c = rcore.position_command(x_ref, x_l, v[P_KV], kr) + v[P_VFF] * omega_s
-    error = x_ref - x_l
-    difference = v[S_MOTOR_POSITION] / kr - x_l - v[S_DIFFERENCE_AT_ENABLE]
+    difference = v[S_MOTOR_POSITION] / v[P_KR] - x_l - v[S_DIFFERENCE_AT_ENABLE]
     v[S_POSITION_REFERENCE] = x_ref
-    v[S_FOLLOWING_ERROR] = error
     v[S_DIFFERENCE] = difference
-    v[S_OMEGA_S] = omega_s
-    v[S_OMEGA_C] = omega_c
-    if v[S_CONSECUTIVE_MISSED] == 0.0:  # limits are checked on measured values only
-        if abs(error) > v[P_FE_LIMIT]:
-            return FOLLOWING_ERROR, 0
-        if abs(difference) > v[P_DISC_LIMIT]:
-            return DISCREPANCY, 0
-        if (x_l < v[P_POS_MIN] and speed <= 0.0) or (x_l > v[P_POS_MAX] and speed >= 0.0):
-            return POSITION_LIMIT, 0
-    u = omega_s - omega_c
-    if not (math.isfinite(omega_s) and math.isfinite(omega_c) and math.isfinite(u)):
-        return NOT_FINITE, 0
-    beta = rcore.detector_step(det, int(v[P_REG_N]), v[P_CYCLE], v[P_REG_TV], v[P_REG_TF], u)
-    if v[P_REG_ON] != 0.0:  # eq. 15
-        lam = rcore.switching_factor(beta, v[P_REG_BT])
-        omega_r = rcore.regulated_speed(omega_s, omega_c, lam)
-    else:
-        lam = 1.0
-        omega_r = omega_c
-    v[S_LAMBDA] = lam
-    limit = v[P_SPEED_LIMIT]
-    if omega_r > limit:
-        omega_r = limit
-    elif omega_r < -limit:
-        omega_r = -limit
-    v[S_OMEGA_R] = omega_r
-    units = omega_r * v[P_UNITS_PER_RAD_S]
+    measured = v[S_CONSECUTIVE_MISSED] == 0.0  # limits are checked on measured values only
+    code = rcycle.position_cycle(v, det, x_ref, speed, x_l, difference, measured)
+    if code != OK:
+        return code, 0
+    units = v[S_OMEGA_R] * v[P_UNITS_PER_RAD_S]
     if not abs(units) < INT32_LIMIT:
         return OUT_OF_RANGE, 0
     return OK, round(units)
@@ -277,6 +249,15 @@ def _compile() -> Functions:
     compiled_core = types.ModuleType("regulator.core (compiled)")
     vars(compiled_core).update(helpers)
     names["rcore"] = compiled_core
+    # regulator.cycle's one composition, compiled against the compiled core
+    cycle_names = dict(vars(rcycle)) | {"core": compiled_core}
+    compiled_cycle = types.ModuleType("regulator.cycle (compiled)")
+    vars(compiled_cycle).update(vars(rcycle))
+    f = rcycle.position_cycle
+    compiled_cycle.position_cycle = jit(  # type: ignore[attr-defined]
+        types.FunctionType(f.__code__, cycle_names, f.__name__)
+    )
+    names["rcycle"] = compiled_cycle
 
     def rebuilt(f: types.FunctionType) -> Any:
         return jit(types.FunctionType(f.__code__, names, f.__name__))

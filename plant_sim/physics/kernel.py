@@ -36,11 +36,13 @@ All arrays are float64; the layouts are the ``P_*``, ``S_*`` and ``O_*`` index c
 from __future__ import annotations
 
 import math
+import types
 
 import numba
 import numpy as np
 
 from regulator import core as _core
+from regulator import cycle as _cycle
 
 _njit = numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=True)
 # Helpers called from the loops are inlined at numba IR level: a plain call passes the arrays
@@ -50,6 +52,28 @@ detector_step = _inline(_core.detector_step)
 switching_factor = _inline(_core.switching_factor)
 regulated_speed = _inline(_core.regulated_speed)
 position_command = _inline(_core.position_command)
+
+
+def _with_core(function, core):  # type: ignore[no-untyped-def]
+    """``function`` of :mod:`regulator.cycle` reading ``core`` for regulator.core's functions
+    (here: the inlined ones above)."""
+    names = dict(vars(_cycle)) | {"core": core}
+    return types.FunctionType(function.__code__, names, function.__name__)
+
+
+_compiled_core = types.ModuleType("regulator.core (the kernel's)")
+vars(_compiled_core).update(
+    detector_step=detector_step,
+    switching_factor=switching_factor,
+    regulated_speed=regulated_speed,
+    position_command=position_command,
+)
+#: regulator.cycle's one composition of the position cycle, compiled like the kernel (one
+#: call per position cycle: numba resolves an inlined function's globals in its caller's)
+position_cycle = _njit(_with_core(_cycle.position_cycle, _compiled_core))
+_CYCLE_OK = _cycle.OK
+_Y_OMEGA_S, _Y_OMEGA_C, _Y_OMEGA_R = _cycle.Y_OMEGA_S, _cycle.Y_OMEGA_C, _cycle.Y_OMEGA_R
+_Y_BETA, _Y_LAMBDA = _cycle.Y_BETA, _cycle.Y_LAMBDA
 
 # --- parameter vector --------------------------------------------------------------------
 (
@@ -461,6 +485,7 @@ def run_closed_loop(
     p: np.ndarray,
     st: np.ndarray,
     reg: np.ndarray,
+    cyc: np.ndarray,
     x_ref: np.ndarray,
     v_ref: np.ndarray,
     dist_nm: np.ndarray,
@@ -477,23 +502,25 @@ def run_closed_loop(
     well-followed path); τ_ff = J_ff·k_r·(v_ref[k] − v_ref[k−1])/T_p over cycle k (v_ref[k]
     is the speed over cycle k, so that is the step the reference makes at its start).
     The position feedback and the recorded positions are the sensor readings
-    (:func:`load_measured`, :func:`motor_measured`: sensor time offset).
+    (:func:`load_measured`, :func:`motor_measured`: sensor time offset). ``cyc``: the
+    cycle block of :mod:`regulator.cycle` (:func:`cycle_block`); ``reg``: the detector state.
     """
     kr = p[P_KR]
-    n_win = int(p[P_REG_N])
     inv_tp = 1.0 / p[P_TP]
     v_prev = v_ref[0]
     for k in range(x_ref.shape[0]):
         x_load = load_measured(p, st)
         th_motor = motor_measured(p, st)
         x_fb = x_load if p[P_FB_LOAD] != 0.0 else th_motor / kr
-        w_s = kr * v_ref[k]
-        w_c = position_command(x_ref[k], x_fb, p[P_KV], kr) + p[P_KVFF] * w_s
+        # regulator.cycle: eq. 7 + k_vff, the detector, eq. 15 (no limits in cyc: inf)
+        if position_cycle(cyc, reg, x_ref[k], v_ref[k], x_fb, 0.0, False) == _CYCLE_OK:
+            w_s, w_c = cyc[_Y_OMEGA_S], cyc[_Y_OMEGA_C]
+            w_r, beta, lam = cyc[_Y_OMEGA_R], cyc[_Y_BETA], cyc[_Y_LAMBDA]
+        else:  # a non-finite feedback (an unstable parameter set): it stays non-finite
+            w_s = kr * v_ref[k]
+            w_c = w_r = beta = lam = math.nan
         tau_ff = p[P_JFF] * kr * (v_ref[k] - v_prev) * inv_tp
         v_prev = v_ref[k]
-        beta = detector_step(reg, n_win, p[P_TP], p[P_REG_TV], p[P_REG_TF], w_s - w_c)
-        lam = switching_factor(beta, p[P_REG_BT]) if p[P_REG_ON] != 0.0 else 1.0
-        w_r = regulated_speed(w_s, w_c, lam)
         if p[P_SP_DELAY] != 0.0:
             w_apply = st[S_SP_PENDING]
             st[S_SP_PENDING] = w_r
@@ -515,6 +542,25 @@ def run_closed_loop(
         out[k, O_WS] = w_s
         out[k, O_WC] = w_c
         _advance(p, st, w_apply, dist_nm[k], ff_apply)  # inlined: no call per cycle
+
+
+def cycle_block(p: np.ndarray) -> np.ndarray:
+    """The cycle block of :mod:`regulator.cycle` for :func:`run_closed_loop`: the law of the
+    parameter vector ``p`` (k_r, k_v, k_vff, the regulator), no limits (the simulated
+    machine has no bridge supervising it)."""
+    return np.array(
+        _cycle.block(
+            p[P_KR],
+            p[P_KV],
+            p[P_TP],
+            velocity_feedforward=p[P_KVFF],
+            regulator_on=p[P_REG_ON] != 0.0,
+            n=int(p[P_REG_N]),
+            tv_s=p[P_REG_TV],
+            tf_s=p[P_REG_TF],
+            beta_t_rad_s=p[P_REG_BT],
+        )
+    )
 
 
 @_njit

@@ -98,5 +98,6 @@ def simulate(
     st = initial_state(axis, x0)
     reg_state = np.zeros(detector_state_size(int(p[K.P_REG_N])))
     out = np.empty((len(refs.position), K.N_OUT))
-    K.run_closed_loop(p, st, reg_state, refs.position, refs.speed, refs.disturbance_nm, out)
+    cyc = K.cycle_block(p)
+    K.run_closed_loop(p, st, reg_state, cyc, refs.position, refs.speed, refs.disturbance_nm, out)
     return Trace({name: out[:, i] for i, name in enumerate(SIM_COLUMNS)})
