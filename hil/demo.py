@@ -71,6 +71,7 @@ def offline_run(
             regulator,
             axis.control.velocity_feedforward or 0.0,
             refs.disturbance_nm,
+            BridgeParams.for_axis(axis, regulator),
         )
     return Trace(
         {

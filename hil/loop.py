@@ -1,10 +1,10 @@
 """The bridge's loop without a bus, around any steppable plant (offline commissioning, proofs).
 
 Per position cycle k, as the bridge over CANopen (docs/canopen_layout.md): the sensors are
-read at t_k; eq. 7 on the load scale with the velocity feed-forward, ``omega_c = k_r (k_v
-(x_ref - x_l) + k_vff v_ref)`` (:class:`regulator.PositionController`); eq. 15 through
-:class:`regulator.BacklashRegulator` (or omega_c unchanged with the regulator off); the set
-point computed at SYNC k takes effect at SYNC k+1 (the PDO delay). The plant is anything with
+read at t_k; :func:`regulator.cycle.position_cycle` (eq. 7 on the load scale with the velocity
+feed-forward, the bridge's limits, the detector, eq. 15, the clamp: the one composition the
+bridge and the kernel run); the set point computed at SYNC k takes effect at SYNC k+1 (the PDO
+delay). The plant is anything with
 ``advance(speed_setpoint_rad_s, disturbance_nm)`` and the readings ``motor_position_rad``,
 ``motor_speed_rad_s``, ``load_position``, ``motor_torque_nm``
 (:class:`plant_sim.plant.SteppedAxis`): the compiled kernel's
@@ -20,8 +20,9 @@ from dataclasses import replace
 import numpy as np
 
 from bridge.commission.session import Recording
+from bridge.params import BridgeParams
 from plant_sim.plant import SteppedAxis
-from regulator import BacklashRegulator, PositionController, RegulatorConfig
+from regulator import RegulatorConfig, core, cycle
 from regulator.tuning import Record, SafetyLimits, safety_stop
 
 #: What the loop closes around (:class:`plant_sim.plant.SteppedAxis`).
@@ -36,31 +37,85 @@ def run_loop(
     regulator: RegulatorConfig,
     velocity_feedforward: float = 0.0,
     disturbance_nm: np.ndarray | None = None,
+    params: BridgeParams | None = None,
 ) -> Recording:
-    """Play the reference (load units, load units/s per cycle) on ``plant`` (module doc)."""
+    """Play the reference (load units, load units/s per cycle) on ``plant`` (module doc).
+
+    Each cycle is :func:`regulator.cycle.position_cycle`, the one composition the bridge's
+    core and the kernel run. ``params``: the bridge's limits in the cycle (2007h clamp, 2008h,
+    2009h, 2014h; None: no limits, as the kernel runs the law); a limit the axis breaks stops
+    it as the bridge does (the set point 0 from then on, ``Recording.stop_reason`` says why)."""
     n = position.size
-    controller = PositionController(regulator.kv, kr)
-    reg = BacklashRegulator.from_config(regulator)
+    det = [0.0] * core.detector_state_size(regulator.n)
+    limits = {}
+    if params is not None:
+        limits = {
+            "speed_limit_rad_s": params.speed_limit_rad_s,
+            "following_error_limit": params.following_error_limit,
+            "discrepancy_limit": params.discrepancy_limit,
+            "position_min": params.position_limit_min,
+            "position_max": params.position_limit_max,
+        }
+    c = cycle.block(
+        kr,
+        regulator.kv,
+        regulator.cycle_s,
+        velocity_feedforward=velocity_feedforward,
+        regulator_on=regulator.enabled,
+        n=regulator.n,
+        tv_s=regulator.effective_tv_s,
+        tf_s=regulator.tf_s,
+        beta_t_rad_s=regulator.beta_t_rad_s,
+        **limits,
+    )
     dist = np.zeros(n) if disturbance_nm is None else disturbance_nm
     out = np.empty((7, n))
     latched = 0.0  # the set point in force during this cycle (sent at the previous SYNC)
+    stop: str | None = None
+    at_enable = plant.motor_position_rad / kr - plant.load_position
     for k in range(n):
         x_l = plant.load_position
-        omega_s = kr * speed[k]
-        omega_c = controller.step(position[k], x_l) + velocity_feedforward * omega_s
-        omega_r = reg.step(omega_s, omega_c)
+        if stop is None:
+            difference = plant.motor_position_rad / kr - x_l - at_enable
+            code = cycle.position_cycle(c, det, position[k], speed[k], x_l, difference, True)
+            if code != cycle.OK:
+                stop = f"cycle {k}: " + _stop_reason(code, c, x_l, difference, params)
+        omega_r = c[cycle.Y_OMEGA_R] if stop is None else 0.0
         out[:, k] = (
             position[k],
             x_l,
             omega_r,
             plant.motor_speed_rad_s,
             plant.motor_torque_nm,
-            reg.vibration_level,
-            reg.switching_factor,
+            c[cycle.Y_BETA],
+            c[cycle.Y_LAMBDA],
         )
         plant.advance(latched, float(dist[k]))
         latched = omega_r
-    return Recording(*out, cycles=n)
+    return Recording(*out, cycles=n, stop_reason=stop)
+
+
+def _stop_reason(
+    code: int, c: list[float], x_l: float, difference: float, params: BridgeParams | None
+) -> str:
+    """The bridge's words for a stop of the cycle (bridge/cycle.py)."""
+    if code == cycle.FOLLOWING_ERROR and params is not None:
+        return (
+            f"following error {c[cycle.Y_ERROR]:.6g} load units exceeds 2008h = "
+            f"{params.following_error_limit:g}"
+        )
+    if code == cycle.DISCREPANCY and params is not None:
+        return (
+            f"motor encoder and load scale differ by {difference:.6g} load units since "
+            f"enable, above 2009h = {params.discrepancy_limit:g}"
+        )
+    if code == cycle.POSITION_LIMIT and params is not None:
+        return (
+            f"load position {x_l:.9g} load units outside the software position limits 2014h "
+            f"[{params.position_limit_min:g}, {params.position_limit_max:g}] and no move "
+            "heads back inside"
+        )
+    return "a non-finite position or speed (the plant diverged)"
 
 
 def trial_runner(
@@ -72,9 +127,11 @@ def trial_runner(
     safety: SafetyLimits,
     velocity_feedforward: float = 0.0,
     disturbance_nm: np.ndarray | None = None,
+    params: BridgeParams | None = None,
 ) -> Callable[[float | None], Record]:
     """A :data:`regulator.tuning.Runner` on fresh plants (``make_plant(start)``): each trial
-    from the same state, the bridge's safety limits applied to what it recorded."""
+    from the same state, the bridge's cycle with its limits (``params``) in the loop and the
+    test's safety limits applied to what it recorded."""
 
     def run(beta_t: float | None) -> Record:
         config = RegulatorConfig(
@@ -89,13 +146,13 @@ def trial_runner(
         plant = make_plant(float(position[0]))
         try:
             trace = run_loop(
-                plant, position, speed, kr, config, velocity_feedforward, disturbance_nm
+                plant, position, speed, kr, config, velocity_feedforward, disturbance_nm, params
             )
         finally:
             close = getattr(plant, "close", None)
             if close is not None:
                 close()
         record = trace.record()
-        return replace(record, stopped=safety_stop(record, safety))
+        return replace(record, stopped=trace.stop_reason or safety_stop(record, safety))
 
     return run

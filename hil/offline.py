@@ -1,10 +1,10 @@
 """Commissioning on the simulated axis, offline: the beta_T procedure and the frequency
-response run on the compiled kernel with the same logic the bridge runs over the bus.
+response on a plant (the compiled kernel's or an FMU's) with the cycle the bridge runs over
+the bus.
 
-* :func:`kernel_runner` -- a :data:`regulator.tuning.Runner` on
-  :func:`plant_sim.physics.simulate.simulate` (the regulator compiled into the loop, the
-  one-cycle PDO delay of ``KernelOptions(setpoint_delay_cycles=1)``): fast, the section X
-  loop the bridge reproduces to 10 nm (docs/bridge.md);
+* :func:`plant_runner` -- a :data:`regulator.tuning.Runner`: each trial on a fresh plant
+  through the bridge's loop without a bus (:func:`hil.loop.trial_runner`: the cycle of
+  :mod:`regulator.cycle` with the bridge's clamp and supervision, the one-cycle PDO delay);
 * :func:`frequency_response` -- the bridge's excitation (:class:`bridge.commission.freqresp.
   ExcitationPlan`) through :func:`hil.loop.run_loop` on any steppable plant, estimated like
   the bus command.
@@ -19,12 +19,12 @@ from dataclasses import replace
 import numpy as np
 
 from bridge.commission.freqresp import ExcitationPlan, FrequencyResponse
+from bridge.params import BridgeParams
 from plant_sim.fmu.arguments import AxisSource
-from plant_sim.physics.model import AxisPlant, KernelOptions
-from plant_sim.physics.simulate import References, simulate
+from plant_sim.physics.model import AxisPlant
 from regulator import RegulatorConfig
 from regulator.frequency_response import antiresonance, bandwidth
-from regulator.tuning import MotionProfile, Record, SafetyLimits, TuningError, safety_stop
+from regulator.tuning import MotionProfile, Record, SafetyLimits, TuningError
 from virtual_bus.formats.axis import AxisConfig
 
 from .loop import Plant, run_loop, trial_runner
@@ -42,39 +42,6 @@ def safety_of(
 
     p = BridgeParams.for_axis(axis, base_regulator(axis))
     return SafetyLimits(following_error, p.position_limit_min, p.position_limit_max, torque_nm)
-
-
-def kernel_runner(
-    axis: AxisConfig,
-    profile: MotionProfile,
-    safety: SafetyLimits,
-    disturbance_nm: np.ndarray | None = None,
-) -> Callable[[float | None], Record]:
-    """Trials on the compiled kernel (module docstring)."""
-    base = base_regulator(axis)
-    dist = np.zeros_like(profile.speed) if disturbance_nm is None else disturbance_nm
-    refs = References(profile.position, profile.speed, dist)
-    options = KernelOptions(setpoint_delay_cycles=1)
-
-    def run(beta_t: float | None) -> Record:
-        reg = RegulatorConfig(
-            kv=base.kv,
-            cycle_s=base.cycle_s,
-            beta_t_rad_s=beta_t if beta_t is not None else base.beta_t_rad_s,
-            enabled=beta_t is not None,
-        )
-        tr = simulate(axis, refs, reg, options)
-        record = Record(
-            tr["position_reference"],
-            tr["load_position"],
-            tr["beta"],
-            tr["lambda"],
-            None,
-            tr["motor_torque"],
-        )
-        return replace(record, stopped=safety_stop(record, safety))
-
-    return run
 
 
 def frequency_response(
@@ -117,21 +84,22 @@ def plant_runner(
     safety: SafetyLimits,
     disturbance_nm: np.ndarray | None = None,
 ) -> Callable[[float | None], Record]:
-    """Trials on the source's plant: the compiled kernel's closed loop
-    (:func:`kernel_runner`), or the bridge's loop (:func:`hil.loop.trial_runner`) around a
-    fresh instance of the FMU per trial."""
+    """Trials on a fresh plant of the source each (the compiled kernel's ``AxisPlant`` or an
+    FMU's): the bridge's loop (:func:`hil.loop.trial_runner`, the cycle of
+    :mod:`regulator.cycle` with the bridge's 2007h clamp and its 2008h (the test's following
+    error limit), 2009h and 2014h supervision), the one-cycle PDO delay."""
     axis = source.axis
-    if source.model is None:
-        return kernel_runner(axis, profile, safety, disturbance_nm)
+    base = base_regulator(axis)
     return trial_runner(
         source.plant,
         profile.position,
         profile.speed,
         axis.transmission_ratio,
-        base_regulator(axis),
+        base,
         safety,
         axis.control.velocity_feedforward or 0.0,
         disturbance_nm,
+        replace(BridgeParams.for_axis(axis, base), following_error_limit=safety.following_error),
     )
 
 

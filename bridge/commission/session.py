@@ -56,6 +56,8 @@ class Recording:
     beta: np.ndarray
     switching_factor: np.ndarray
     cycles: int = 0
+    #: why the loop stopped the axis (:func:`hil.loop.run_loop`), None when it did not
+    stop_reason: str | None = None
 
     @classmethod
     def empty(cls, size: int) -> Recording:
@@ -72,6 +74,7 @@ class Recording:
             self.beta[:n],
             self.switching_factor[:n],
             n,
+            self.stop_reason,
         )
 
     def record(self, stopped: str | None = None) -> Record:

@@ -19,7 +19,8 @@ import pytest
 
 from bridge.commission.freqresp import ExcitationPlan
 from hil.loop import run_loop, trial_runner
-from hil.offline import frequency_response, kernel_runner, safety_of
+from hil.offline import frequency_response, plant_runner, safety_of
+from plant_sim.fmu.arguments import AxisSource
 from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
 from plant_sim.paper.scenarios import SectionX
 from regulator import RegulatorConfig
@@ -55,7 +56,8 @@ def _section_x(axis: AxisConfig, beta_t: float | None) -> tuple[float, float]:
 def _found_on_the_kernel() -> float:
     """The procedure on the project's own simulated axis (what `hil tune` runs)."""
     profile = TuningMotion().profile(CYCLE_S, KV).repeated(2)
-    run = kernel_runner(LIMIT_CYCLE, profile, safety_of(LIMIT_CYCLE, 0.01, 150.0))
+    safety = safety_of(LIMIT_CYCLE, 0.01, 150.0)
+    run = plant_runner(AxisSource(LIMIT_CYCLE, "limit cycle"), profile, safety)
     result = search(run, profile, SearchConfig(), CYCLE_S, KV, 1e-6)
     assert result.outcome is Outcome.FOUND, result.reason
     assert result.beta_t_rad_s is not None

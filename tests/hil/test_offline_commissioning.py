@@ -112,11 +112,12 @@ def test_hil_tune_stops_on_a_safety_limit(
     limit_cycle_axis: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A following-error limit below the test motion's (eq. 1: 0.05 / 25 = 2 mm) stops the
-    first trial with the reason."""
+    first trial with the reason, in the bridge's words (the loop is the bridge's cycle with its
+    2008h)."""
     argv = ["tune", "--axis", str(limit_cycle_axis), "--out", str(tmp_path / "t")]
     code = main([*argv, "--torque-limit", "150", "--following-error-limit", "0.001"])
     err = capsys.readouterr().err
-    assert code == 1 and "following error" in err and "beyond the limit 0.001" in err
+    assert code == 1 and "following error" in err and "exceeds 2008h = 0.001" in err
 
 
 def test_hil_freqresp_writes_the_bode_figure(
