@@ -22,7 +22,8 @@ import numpy as np
 from bridge.commission.session import Recording
 from bridge.params import BridgeParams
 from plant_sim.plant import SteppedAxis
-from regulator import RegulatorConfig, core, cycle
+from regulator import RegulatorConfig, cycle
+from regulator.loop import play
 from regulator.tuning import Record, SafetyLimits, safety_stop
 
 #: What the loop closes around (:class:`plant_sim.plant.SteppedAxis`).
@@ -45,8 +46,6 @@ def run_loop(
     core and the kernel run. ``params``: the bridge's limits in the cycle (2007h clamp, 2008h,
     2009h, 2014h; None: no limits, as the kernel runs the law); a limit the axis breaks stops
     it as the bridge does (the set point 0 from then on, ``Recording.stop_reason`` says why)."""
-    n = position.size
-    det = [0.0] * core.detector_state_size(regulator.n)
     limits = {}
     if params is not None:
         limits = {
@@ -68,31 +67,22 @@ def run_loop(
         beta_t_rad_s=regulator.beta_t_rad_s,
         **limits,
     )
-    dist = np.zeros(n) if disturbance_nm is None else disturbance_nm
-    out = np.empty((7, n))
-    latched = 0.0  # the set point in force during this cycle (sent at the previous SYNC)
-    stop: str | None = None
-    at_enable = plant.motor_position_rad / kr - plant.load_position
-    for k in range(n):
-        x_l = plant.load_position
-        if stop is None:
-            difference = plant.motor_position_rad / kr - x_l - at_enable
-            code = cycle.position_cycle(c, det, position[k], speed[k], x_l, difference, True)
-            if code != cycle.OK:
-                stop = f"cycle {k}: " + _stop_reason(code, c, x_l, difference, params)
-        omega_r = c[cycle.Y_OMEGA_R] if stop is None else 0.0
-        out[:, k] = (
-            position[k],
-            x_l,
-            omega_r,
-            plant.motor_speed_rad_s,
-            plant.motor_torque_nm,
-            c[cycle.Y_BETA],
-            c[cycle.Y_LAMBDA],
-        )
-        plant.advance(latched, float(dist[k]))
-        latched = omega_r
-    return Recording(*out, cycles=n, stop_reason=stop)
+    run = play(plant, position, speed, c, disturbance_nm)
+    stop = None
+    if run.stop_cycle is not None:
+        why = _stop_reason(run.stop_code, c, run.stop_feedback, run.stop_difference, params)
+        stop = f"cycle {run.stop_cycle}: {why}"
+    return Recording(
+        run["position_reference"],
+        run["load_position"],
+        run["speed_setpoint"],
+        run["motor_speed"],
+        run["motor_torque"],
+        run["beta"],
+        run["lambda"],
+        cycles=position.size,
+        stop_reason=stop,
+    )
 
 
 def _stop_reason(

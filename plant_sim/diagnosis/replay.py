@@ -24,9 +24,10 @@ on a real machine, so the simulated one is shifted by the median difference to t
 
 from __future__ import annotations
 
+import contextlib
 import math
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +38,8 @@ from virtual_bus.formats.errors import TraceWarning
 from virtual_bus.formats.trace import Trace, check_time_base
 
 from ..physics.model import KernelOptions
-from ..physics.simulate import References, simulate
+from ..physics.simulate import References, simulate, simulate_plant
+from ..plant import SteppedAxis
 from .errors import DiagnosisInputError
 
 #: Signals the diagnosis compares, as trace columns. Positions are scored on their following
@@ -277,15 +279,22 @@ def replay(
     inp: ReplayInput,
     options: KernelOptions = DEFAULT_OPTIONS,
     columns: Sequence[str] = SIMULATED_COLUMNS,
+    plant: Callable[[float], SteppedAxis] | None = None,
 ) -> Trace:
     """Simulate ``axis`` in closed loop like the recording of ``inp``.
 
     Returns the simulated ``columns`` (default :data:`SIMULATED_COLUMNS`) plus ``time`` (the
     recording's sample times), ``position_reference`` and ``disturbance`` (the inputs, as
     recorded). Non-finite outputs (an unstable parameter set) are kept as they are.
+    ``plant``: a plant other than the kernel's (an FMU's) at rest at a start position, made by
+    ``plant(start)``; ``axis`` is then the controller around it (k_r, k_v, the feedback).
     """
     _check_compatible(axis, inp)
-    sim = simulate(axis, inp.references, None, options, start_position=inp.start_position)
+    if plant is not None:
+        with contextlib.closing(plant(inp.start_position)) as p:  # type: ignore[type-var]
+            sim = simulate_plant(p, axis, inp.references, None, options.setpoint_delay_cycles)
+    else:
+        sim = simulate(axis, inp.references, None, options, start_position=inp.start_position)
     rel = inp.time_s - inp.time_s[0]
     grid = np.arange(len(sim)) * inp.cycle_s
     out: dict[str, np.ndarray] = {"time": inp.time_s.copy()}

@@ -1,7 +1,9 @@
 """Closed-loop simulation (Fig. 1 / Fig. 6) of an axis file, producing a :class:`Trace`.
 
 The position controller, vibration detector and speed regulator run in the compiled kernel
-at the position cycle; references and disturbances are arrays, one value per position cycle.
+at the position cycle (:func:`simulate`), or in Python around any steppable plant such as an
+FMU's (:func:`simulate_plant`); references and disturbances are arrays, one value per
+position cycle.
 """
 
 from __future__ import annotations
@@ -10,12 +12,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from regulator import RegulatorConfig
+from regulator import RegulatorConfig, cycle
 from regulator.core import detector_state_size
-from virtual_bus.formats.axis import AxisConfig
+from regulator.loop import play
+from virtual_bus.formats.axis import AxisConfig, PositionFeedback
 from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace
 
 from ..errors import ScenarioError
+from ..plant import SteppedAxis
 from . import kernel as K
 from .model import KernelOptions, build_params, initial_state
 
@@ -101,3 +105,41 @@ def simulate(
     cyc = K.cycle_block(p)
     K.run_closed_loop(p, st, reg_state, cyc, refs.position, refs.speed, refs.disturbance_nm, out)
     return Trace({name: out[:, i] for i, name in enumerate(SIM_COLUMNS)})
+
+
+def simulate_plant(
+    plant: SteppedAxis,
+    axis: AxisConfig,
+    refs: References,
+    regulator: RegulatorConfig | None = None,
+    setpoint_delay_cycles: int = 0,
+) -> Trace:
+    """The closed loop of :func:`simulate` around any steppable plant (an FMU's, started
+    where the caller placed it): the same cycle (:mod:`regulator.cycle`) in Python,
+    :func:`regulator.loop.play`; the same columns. ``axis``: the controller (k_r, k_v, the
+    cycle, the velocity feed-forward, the position feedback); no limits, as :func:`simulate`.
+    """
+    c = axis.control
+    reg = regulator or RegulatorConfig(kv=c.kv, cycle_s=c.position_cycle, enabled=False)
+    block = cycle.block(
+        axis.transmission_ratio,
+        c.kv,
+        c.position_cycle,
+        velocity_feedforward=c.velocity_feedforward or 0.0,
+        regulator_on=regulator is not None and regulator.enabled,
+        n=reg.n,
+        tv_s=reg.effective_tv_s,
+        tf_s=reg.tf_s,
+        beta_t_rad_s=reg.beta_t_rad_s,
+    )
+    run = play(
+        plant,
+        refs.position,
+        refs.speed,
+        block,
+        refs.disturbance_nm,
+        delay_cycles=setpoint_delay_cycles,
+        motor_feedback=c.position_feedback is PositionFeedback.MOTOR,
+    )
+    time = np.arange(len(refs.position)) * c.position_cycle
+    return Trace({"time": time} | {name: run[name] for name in SIM_COLUMNS if name != "time"})
