@@ -241,23 +241,13 @@ def _compile() -> Functions:
     import numba
     import numpy as np
 
+    from regulator import compiled
+
     jit = numba.njit(cache=True, nogil=True)  # no fastmath: bit for bit the Python result
     names = dict(globals())
-    helpers = {}
-    for name in ("position_command", "detector_step", "switching_factor", "regulated_speed"):
-        helpers[name] = jit(getattr(rcore, name))
-    compiled_core = types.ModuleType("regulator.core (compiled)")
-    vars(compiled_core).update(helpers)
-    names["rcore"] = compiled_core
-    # regulator.cycle's one composition, compiled against the compiled core
-    cycle_names = dict(vars(rcycle)) | {"core": compiled_core}
-    compiled_cycle = types.ModuleType("regulator.cycle (compiled)")
-    vars(compiled_cycle).update(vars(rcycle))
-    f = rcycle.position_cycle
-    compiled_cycle.position_cycle = jit(  # type: ignore[attr-defined]
-        types.FunctionType(f.__code__, cycle_names, f.__name__)
-    )
-    names["rcycle"] = compiled_cycle
+    shared = compiled.load()  # regulator's core and cycle, compiled once for every caller
+    names["rcore"] = shared.core
+    names["rcycle"] = shared.cycle
 
     def rebuilt(f: types.FunctionType) -> Any:
         return jit(types.FunctionType(f.__code__, names, f.__name__))

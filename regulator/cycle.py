@@ -105,12 +105,10 @@ def position_cycle(
     if not (math.isfinite(omega_s) and math.isfinite(omega_c) and math.isfinite(u)):
         return NOT_FINITE
     beta = core.detector_step(det, int(c[C_REG_N]), c[C_CYCLE], c[C_REG_TV], c[C_REG_TF], u)
-    if c[C_REG_ON] != 0.0:  # eq. 15
-        lam = core.switching_factor(beta, c[C_REG_BT])
-        omega_r = core.regulated_speed(omega_s, omega_c, lam)
-    else:
-        lam = 1.0
-        omega_r = omega_c
+    # eq. 15; off: lambda 1, and regulated_speed returns omega_c exactly (the same expression
+    # either way, so that a compiler that may reorder arithmetic does it alike in both)
+    lam = core.switching_factor(beta, c[C_REG_BT]) if c[C_REG_ON] != 0.0 else 1.0
+    omega_r = core.regulated_speed(omega_s, omega_c, lam)
     limit = c[C_SPEED_LIMIT]
     if omega_r > limit:
         omega_r = limit

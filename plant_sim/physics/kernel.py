@@ -52,25 +52,28 @@ detector_step = _inline(_core.detector_step)
 switching_factor = _inline(_core.switching_factor)
 regulated_speed = _inline(_core.regulated_speed)
 position_command = _inline(_core.position_command)
-
-
-def _with_core(function, core):  # type: ignore[no-untyped-def]
-    """``function`` of :mod:`regulator.cycle` reading ``core`` for regulator.core's functions
-    (here: the inlined ones above)."""
-    names = dict(vars(_cycle)) | {"core": core}
-    return types.FunctionType(function.__code__, names, function.__name__)
-
-
-_compiled_core = types.ModuleType("regulator.core (the kernel's)")
-vars(_compiled_core).update(
+_kernel_core = types.ModuleType("regulator.core (the kernel's)")
+vars(_kernel_core).update(
     detector_step=detector_step,
     switching_factor=switching_factor,
     regulated_speed=regulated_speed,
     position_command=position_command,
 )
-#: regulator.cycle's one composition of the position cycle, compiled like the kernel (one
-#: call per position cycle: numba resolves an inlined function's globals in its caller's)
-position_cycle = _njit(_with_core(_cycle.position_cycle, _compiled_core))
+
+
+def _kernel_copy(function: types.FunctionType, name: str) -> types.FunctionType:
+    """``function`` of :mod:`regulator.cycle` for this kernel: regulator.core's functions
+    inlined, compiled with the kernel's flags. A code object of its own name: numba's cache
+    keys a function by its code's name, not its compile options, and the bridge compiles the
+    same source exactly (regulator.compiled); numba also compiles a callee with its caller's
+    fastmath, so the kernel must not call the bridge's compiled functions."""
+    code = function.__code__.replace(co_name=name, co_qualname=name)
+    return types.FunctionType(code, dict(vars(_cycle)) | {"core": _kernel_core}, name)
+
+
+#: regulator.cycle's one composition of the position cycle, compiled with the kernel (one call
+#: per position cycle: numba resolves an inlined function's globals in its caller's)
+position_cycle = _njit(_kernel_copy(_cycle.position_cycle, "kernel_position_cycle"))
 _CYCLE_OK = _cycle.OK
 _Y_OMEGA_S, _Y_OMEGA_C, _Y_OMEGA_R = _cycle.Y_OMEGA_S, _cycle.Y_OMEGA_C, _cycle.Y_OMEGA_R
 _Y_BETA, _Y_LAMBDA = _cycle.Y_BETA, _cycle.Y_LAMBDA

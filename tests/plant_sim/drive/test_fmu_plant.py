@@ -31,9 +31,11 @@ def test_the_drive_steps_the_fmu_once_per_sync() -> None:
     with FmuPlant(model, axis) as plant, virtual_rig(axis, plant=plant) as rig:
         states = enable_and_run(rig, increments(10.0), 50)
         assert states[-1] is S.OPERATION_ENABLED
+        # the drive steps after a SYNC's TPDOs: an SDO answer comes after that step (the drive
+        # handles its frames in order), so the plant is read once it is done
+        counts = rig.sdo.sdo[0x6064].raw
         assert plant.time_s == pytest.approx(50 * axis.control.position_cycle)
         assert plant.motor_speed_rad_s == pytest.approx(10.0, abs=0.5)
-        counts = rig.sdo.sdo[0x6064].raw
         assert counts == round(plant.motor_position_rad / (2 * math.pi) * 2**20)
 
 
