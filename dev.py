@@ -577,7 +577,7 @@ def _benches(realtime_s: float) -> tuple[Bench, ...]:
         *(_host_latency_bench(rate_hz, realtime_s) for rate_hz in (1000, 2000)),
         Bench(
             "monitor",
-            ("plant_sim", "monitor-bench", "--counts", "100,1000", "--json", "{out}/m.json"),
+            ("fleet", "monitor-bench", "--counts", "100,1000", "--json", "{out}/m.json"),
             "m.json",
             (
                 Figure("fleet monitor, 100 recordings", "recordings_per_min.100", "recordings/min"),

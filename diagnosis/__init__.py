@@ -14,7 +14,7 @@ returns), :mod:`.explain` (the paragraph), :mod:`.report` (report files), :mod:`
 (the concealed test set), :mod:`.matrix` (confusion matrix), :mod:`.bench`.
 See docs/diagnosis.md.
 
->>> from plant_sim.diagnosis import diagnose, write_report
+>>> from diagnosis import diagnose, write_report
 >>> d = diagnose(read_trace("rec.csv"), load_axis("axis.toml"))
 >>> d.left_out, d.fit_after["motor_torque"].fit_percent
 """

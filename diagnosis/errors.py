@@ -1,12 +1,14 @@
-"""Exceptions of :mod:`plant_sim.diagnosis`; all derive from :class:`plant_sim.errors.PlantSimError`
-(the package's one root) and the matching builtin, so the CLI turns them into one line + exit 2."""
+"""Exceptions of :mod:`diagnosis`: one root (:class:`DiagnosisError`), each subclass also the
+matching builtin, so the CLI turns them into one line + exit 2."""
 
 from __future__ import annotations
 
-from ..errors import PlantSimError
+
+class DiagnosisError(Exception):
+    """Root of every error raised by :mod:`diagnosis`."""
 
 
-class DiagnosisInputError(PlantSimError, ValueError):
+class DiagnosisInputError(DiagnosisError, ValueError):
     """An axis file and a recording do not fit together (missing column for the feedback the
     axis closes its loop on, transmission ratio that contradicts the recording, ...).
 
@@ -19,5 +21,5 @@ class DiagnosisInputError(PlantSimError, ValueError):
         self.key = key
 
 
-class DiagnosisOptionError(PlantSimError, ValueError):
+class DiagnosisOptionError(DiagnosisError, ValueError):
     """An option of the diagnosis is outside its allowed range (message gives value and range)."""

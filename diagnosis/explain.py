@@ -188,7 +188,7 @@ def explain(d: Diagnosis) -> str:
         )
     elif d.left_out:
         parts.append(
-            "Check the fitted model on a second recording with `python -m plant_sim simulate "
+            "Check the fitted model on a second recording with `python -m diagnosis simulate "
             "--like` (or `diagnose --validate`)."
         )
     for a in d.ambiguous:

@@ -30,9 +30,9 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import qmc
 
+from plant_sim.physics.model import KernelOptions
 from virtual_bus.formats.axis import AxisConfig
 
-from ..physics.model import KernelOptions
 from .errors import DiagnosisOptionError
 from .replay import ReplayInput, compared_quantity, replay
 

@@ -25,12 +25,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from plant_sim.errors import ScenarioError
+from plant_sim.physics.kernel import MAX_DELAY
+from plant_sim.physics.model import KernelOptions, default_substeps
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.errors import AxisFileError
 
-from ..errors import ScenarioError
-from ..physics.kernel import MAX_DELAY
-from ..physics.model import KernelOptions, default_substeps
 from .effects import Effect
 from .parameters import UNCERTAIN_KEYS
 from .randomization import Whitener, face_value_test, fit_whitener, time_blocks

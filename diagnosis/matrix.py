@@ -1,6 +1,6 @@
 """Confusion matrix and fit improvements of the diagnosis on the concealed test set.
 
-``python -m plant_sim matrix [--plant kernel|independent|third] [--seed 2] [--duration 25]
+``python -m diagnosis matrix [--plant kernel|independent|third] [--seed 2] [--duration 25]
 [--cases NAME ...] [--validate N] [--out DIR]`` runs :func:`run_matrix` on the plant's test
 set and prints the markdown tables (confusion matrix, per-case results with concealment and fit
 before/after, timings); ``--out`` also writes them to ``DIR/matrix_<plant>_seed<S>.md`` (and
@@ -8,21 +8,18 @@ the results as JSON lines).
 
 The plant that makes the recordings is a :class:`MatrixPlant`: ``kernel`` is this package's
 compiled kernel (:func:`synthetic.generate`), ``independent`` the test suite's independent
-plant (``tests/independent_plant``: other integrator, friction and contact laws, sensors,
+plant (``reference_plants/independent``: other integrator, friction and contact laws, sensors,
 current loop and noise) on the same test set, ``third`` the third plant with its own
-families and test set (``tests/third_plant``: three masses, LuGre friction, ...), both found
+families and test set (``reference_plants/third``: three masses, LuGre friction, ...), both found
 relative to this checkout.
 The full set takes several minutes (one diagnosis per case); the test suite runs a few cases.
 """
 
 from __future__ import annotations
 
-import importlib
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 from virtual_bus.formats.trace import Trace
 
@@ -70,49 +67,29 @@ KERNEL_PLANT = MatrixPlant(
 PLANTS = ("kernel", "independent", "third")
 
 
-def _tests_package(name: str) -> object:
-    """``tests.<name>`` of this checkout, imported under the name the test suite uses (the
-    plants' compiled functions are cached by numba under their module's name: imported as
-    a top-level ``third_plant`` here and as ``tests.third_plant`` by the tests, one cache
-    would point at a module the other cannot import)."""
-    root = Path(__file__).resolve().parents[2]
-    if not (root / "tests" / name).is_dir():
-        raise ValueError(
-            f"{root / 'tests' / name} not found (the plant lives in this checkout's tests)"
-        )
-    if str(root) not in sys.path:
-        sys.path.insert(0, str(root))
-    return importlib.import_module(f"tests.{name}")
-
-
 def load_plant(name: str) -> MatrixPlant:
-    """``kernel``, ``independent`` or ``third`` (the last two imported from this checkout's
-    tests/ directory: ``independent_plant``, ``third_plant``)."""
+    """``kernel`` (the simulator's own), ``independent`` or ``third`` (the plants of
+    :mod:`reference_plants`, their test sets in :mod:`diagnosis.testsets`)."""
     if name == "kernel":
         return KERNEL_PLANT
     if name == "independent":
-        _tests_package("independent_plant")
-        recording = importlib.import_module("tests.independent_plant.recording")
+        from .testsets import independent
 
         def conceal(gen: GeneratedCase) -> dict[str, float]:
-            return concealment(gen, recording.simulator)
+            return concealment(gen, independent.simulator)
 
         return MatrixPlant(
-            "independent", _kernel_cases, recording.generate, conceal, recording.another_recording
+            "independent",
+            _kernel_cases,
+            independent.generate,
+            conceal,
+            independent.another_recording,
         )
     if name == "third":
-        third = _tests_package("third_plant")
-        cases = importlib.import_module("tests.third_plant.cases")
-
-        def third_cases(seed: int, duration_s: float) -> list[Case]:
-            return cases.test_set(seed, duration_s)
+        from .testsets import third
 
         return MatrixPlant(
-            "third",
-            third_cases,
-            third.generate,  # type: ignore[attr-defined]
-            third.concealment,  # type: ignore[attr-defined]
-            third.another_recording,  # type: ignore[attr-defined]
+            "third", third.test_set, third.generate, third.concealment, third.another_recording
         )
     raise ValueError(f"plant {name!r}: allowed {PLANTS}")
 
@@ -290,14 +267,3 @@ def cases_markdown(results: Sequence[CaseResult]) -> str:
             f"{secs[len(secs) // 2]:.0f} s, max {secs[-1]:.0f} s."
         )
     return "\n".join(lines)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """The former entry point; the command is ``python -m plant_sim matrix``."""
-    from plant_sim.__main__ import main as plant_sim_main
-
-    return plant_sim_main(["matrix", *(sys.argv[1:] if argv is None else argv)])
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -16,9 +16,9 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+from plant_sim.physics.model import MAX_OMEGA_DT, KernelOptions
 from virtual_bus.formats.axis import RANGES, AxisConfig, AxisKind
 
-from ..physics.model import MAX_OMEGA_DT, KernelOptions
 from .evidence import DataScales
 from .fit import PERIODIC_COS, PERIODIC_SIN, Parameter
 

@@ -33,13 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from plant_sim.physics.model import KernelOptions
+from plant_sim.physics.simulate import References, simulate, simulate_plant
+from plant_sim.plant import SteppedAxis
 from virtual_bus.formats.axis import AxisConfig, PositionFeedback
 from virtual_bus.formats.errors import TraceWarning
 from virtual_bus.formats.trace import Trace, check_time_base
 
-from ..physics.model import KernelOptions
-from ..physics.simulate import References, simulate, simulate_plant
-from ..plant import SteppedAxis
 from .errors import DiagnosisInputError
 
 #: Signals the diagnosis compares, as trace columns. Positions are scored on their following
@@ -321,7 +321,7 @@ def like_recording(inp: ReplayInput, simulated: Trace) -> Trace:
 def simulate_like(
     axis: AxisConfig, recording: Trace, options: KernelOptions = DEFAULT_OPTIONS
 ) -> Trace:
-    """``python -m plant_sim simulate --like``: the axis's closed loop driven by the
+    """``python -m diagnosis simulate --like``: the axis's closed loop driven by the
     recording's position_reference (and disturbance), with the recording's columns and times."""
     inp = prepare_replay(recording, axis)
     return like_recording(inp, replay(axis, inp, options))

@@ -1,4 +1,4 @@
-"""Write a :class:`~plant_sim.diagnosis.engine.Diagnosis`: report.json, axis_fitted.toml,
+"""Write a :class:`~diagnosis.engine.Diagnosis`: report.json, axis_fitted.toml,
 fit_before.csv / fit_after.csv (simulated traces with the recording's columns and time base)
 and report.png (recording vs before vs after per signal, mismatch windows shaded, residuals).
 """
@@ -181,7 +181,7 @@ def simulated_like(recording: Trace, simulated: Trace) -> Trace:
 def axis_text(d: Diagnosis, source: str = "") -> str:
     added = ", ".join(e.value for e in d.left_out) or "none"
     header = [
-        "Fitted by python -m plant_sim diagnose" + (f" from {source}" if source else "") + ".",
+        "Fitted by python -m diagnosis diagnose" + (f" from {source}" if source else "") + ".",
         f"Effects added: {added}.",
         "Uncertain parameters re-fitted by closed-loop simulation error, within their "
         "data-sheet uncertainty unless the evidence put them beyond it.",

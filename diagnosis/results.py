@@ -1,4 +1,4 @@
-"""What :func:`~plant_sim.diagnosis.engine.diagnose` returns, its options and the per-signal
+"""What :func:`~diagnosis.engine.diagnose` returns, its options and the per-signal
 fit of a simulation (report.json is written from these)."""
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ class Scorer:
 
     def test(self, small: np.ndarray, big: np.ndarray) -> tuple[float, float]:
         """z and one-sided p that the held-out residuals ``big`` are the smaller ones
-        (:func:`~plant_sim.diagnosis.metrics.improvement_test`)."""
+        (:func:`~diagnosis.metrics.improvement_test`)."""
         lags = min(self.lags, max(1, small.shape[1] // 10))
         return improvement_test(small, big, lags)
 

@@ -38,11 +38,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from plant_sim.physics.model import KernelOptions
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.errors import AxisFileError
 from virtual_bus.formats.trace import Trace
 
-from ..physics.model import KernelOptions
 from . import deflection as dfl
 from . import idim
 from .effects import MODELS, Effect, effects_in

@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 from scipy import signal as sps
 
+from plant_sim.physics.model import KernelOptions, default_substeps
+from plant_sim.physics.simulate import References, simulate
 from virtual_bus.formats.axis import (
     AxisConfig,
     AxisKind,
@@ -43,8 +45,6 @@ from virtual_bus.formats.axis import (
 )
 from virtual_bus.formats.trace import MOTION_COLUMNS, Trace
 
-from ..physics.model import KernelOptions, default_substeps
-from ..physics.simulate import References, simulate
 from .effects import MODELS, Effect
 from .errors import DiagnosisOptionError
 
@@ -395,7 +395,7 @@ def _strip(axis: AxisConfig, effect: Effect, truth_base: AxisConfig) -> AxisConf
 #: A plant as a function: noise-free closed loop of an axis on references (the recording's
 #: hidden truth): the columns time, position_reference, motor_position, load_position,
 #: motor_speed and motor_torque at every position cycle. :func:`truth_simulator` is the
-#: compiled kernel's; the test suite has an independent one (tests/independent_plant).
+#: compiled kernel's; the test suite has an independent one (reference_plants/independent).
 Simulator = Callable[[AxisConfig, References], Trace]
 
 

@@ -7,7 +7,7 @@ each on the project's 2-core machine) and says whether it named the hidden effec
 recording and reports the diagnosis in simulations and in wall time per simulation, so
 that a run on a busy machine can be compared with a quiet one (relative cost).
 :func:`bench_matrix` runs the full confusion matrix (several minutes; also
-``python -m plant_sim matrix``).
+``python -m diagnosis matrix``).
 """
 
 from __future__ import annotations

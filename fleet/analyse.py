@@ -17,14 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
+from plant_sim.errors import PlantSimError
 from regulator.errors import RegulatorError
 from virtual_bus.formats import FormatError
 from virtual_bus.formats.axis import AxisConfig, PositionFeedback, load_axis
 
-from ..errors import PlantSimError, RecordingError
 from .candump import layout_for
 from .chunks import Chunk
 from .episodes import DetectorSetup, Episode, EpisodeFinder, Verdict
+from .errors import RecordingError
 from .lost_motion import LostMotionEstimator
 from .readers import open_chunks
 from .sources import RecordingKind, Source

@@ -45,8 +45,8 @@ from virtual_bus.contract import (
 )
 from virtual_bus.formats.axis import AxisKind
 
-from ..errors import RecordingError
 from .chunks import CHUNK_ROWS, Chunk, checked, first_line
+from .errors import RecordingError
 
 MOTOR_POSITION = (0x6064, 0)
 TORQUE = (0x6077, 0)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import RecordingError
+from .errors import RecordingError
 
 #: Rows (trace) or SYNC cycles (log) per chunk.
 CHUNK_ROWS = 16384

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from plant_sim.physics.simulate import References, simulate
 from virtual_bus.contract import (
     SYNC_COB_ID,
     rpdo_cob_id,
@@ -40,8 +41,6 @@ from virtual_bus.contract import (
 from virtual_bus.formats.axis import AxisConfig, load_axis
 from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace
 from virtual_bus.shipped import PAPER_AXIS
-
-from ..physics.simulate import References, simulate
 
 CONDITIONS = ("clean", "growing", "vibrating", "corrupt")
 GROWTH_UM_PER_MONTH = 10.0

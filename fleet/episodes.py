@@ -36,8 +36,8 @@ from regulator import core as _core
 from regulator.analysis import condition_monitoring, vibration_band_hz
 from regulator.errors import RegulatorError
 
-from ..errors import RecordingError
 from .chunks import Chunk, backward_difference
+from .errors import RecordingError
 
 _step = numba.njit(cache=True, nogil=True, inline="always")(_core.detector_step)
 

@@ -31,9 +31,9 @@ import numpy as np
 from virtual_bus.formats import trace as trace_format
 from virtual_bus.formats.errors import TraceFileError
 
-from ..errors import RecordingError
 from .candump import CandumpLayout, read_candump_chunks
 from .chunks import CHUNK_ROWS, Chunk, first_line
+from .errors import RecordingError
 from .sources import RecordingKind
 
 #: Arrow's parse block, bytes (~ 10,000 rows of a 7-column trace).

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from ..parallel import dask_client, run_tasks
+from plant_sim.parallel import dask_client, run_tasks
+
 from .analyse import RecordingResult, analyse
 from .sources import Source
 

@@ -24,7 +24,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import FleetMapError
+from .errors import FleetMapError
 
 
 class RecordingKind(enum.Enum):

@@ -22,20 +22,15 @@ COMMANDS = (
     "paper",
     "sweep",
     "bench",
-    "simulate",
     "identify",
-    "diagnose",
     "emps",
     "xl330",
     "force_error",
-    "matrix",
     "drive",
     "fmu_axis",
-    "monitor",
-    "monitor_bench",
 )
 DESCRIPTION = (
-    "Servo-axis simulator, paper reproduction and diagnosis "
+    "Servo-axis simulator and paper reproduction "
     "(Mohammadiasl, 'Vibration Detection and Backlash Suppression in Machine Tools')."
 )
 

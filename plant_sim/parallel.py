@@ -1,6 +1,6 @@
 """Tasks on Dask: local processes or an existing cluster, results handed over as they come.
 
-What the fleet monitor (:mod:`plant_sim.fleet`) and the sweeps over many axes
+What the fleet monitor (:mod:`fleet`) and the sweeps over many axes
 (:mod:`hil.sweep`) share. ``workers=0`` runs in this process (no Dask; for debugging and small
 tests). Otherwise the tasks go to a ``dask.distributed`` client: a
 :class:`~distributed.LocalCluster` of ``workers`` single-threaded processes started here (the

@@ -30,7 +30,7 @@ from .closing import Closing
 class Bar(Closing):
     """A counted stage: ``update(n)``, ``set_description(text)`` (a new sub-stage), ``close``.
 
-    Compatible with what :func:`plant_sim.diagnosis.engine.diagnose` expects of a progress bar.
+    Compatible with what :func:`diagnosis.engine.diagnose` expects of a progress bar.
     """
 
     def __init__(self, progress: Progress, total: int | None, desc: str, unit: str) -> None:

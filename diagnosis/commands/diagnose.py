@@ -1,4 +1,4 @@
-"""``python -m plant_sim diagnose RECORDING.csv --axis AXIS.toml --out DIR``.
+"""``python -m diagnosis diagnose RECORDING.csv --axis AXIS.toml --out DIR``.
 
 Says where and when a recording of a real axis and its nominal model differ, which physics
 of the axis-file table the model leaves out, adds and fits it, and shows the fit improving on
@@ -11,16 +11,16 @@ from __future__ import annotations
 import argparse
 import warnings
 
+from plant_sim.commands.common import plain_warnings
 from virtual_bus import cli
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.formats.errors import TraceWarning
 from virtual_bus.formats.trace import read_trace
 from virtual_bus.progress import Progress
 
-from ..diagnosis.effects import Effect
-from ..diagnosis.engine import DiagnosisOptions, diagnose, prepare
-from ..diagnosis.report import REPORT_FILES, write_report
-from .common import plain_warnings
+from ..effects import Effect
+from ..engine import DiagnosisOptions, diagnose, prepare
+from ..report import REPORT_FILES, write_report
 
 NAME = "diagnose"
 HELP = (

@@ -1,7 +1,7 @@
-"""``python -m plant_sim matrix [--plant kernel|independent|third] [--seed 2] [--out DIR] ...``.
+"""``python -m diagnosis matrix [--plant kernel|independent|third] [--seed 2] [--out DIR] ...``.
 
 Runs the diagnosis on the plant's concealed test set
-and prints the markdown tables of :mod:`plant_sim.diagnosis.matrix` (confusion matrix,
+and prints the markdown tables of :mod:`diagnosis.matrix` (confusion matrix,
 per-case results, timings). The full set takes several minutes (one diagnosis per case).
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 from virtual_bus import cli
 from virtual_bus.progress import Progress
 
-from ..diagnosis.matrix import (
+from ..matrix import (
     PLANTS,
     CaseResult,
     cases_markdown,

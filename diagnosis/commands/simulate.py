@@ -1,4 +1,4 @@
-"""``python -m plant_sim simulate --axis AXIS.toml --like RECORDING.csv --out SIM.csv``
+"""``python -m diagnosis simulate --axis AXIS.toml --like RECORDING.csv --out SIM.csv``
 (or ``--fmu FMU [--fmu-param ...]``).
 
 Simulates the axis file's closed loop (Fig. 1: P position controller, PI/P speed controller,
@@ -15,13 +15,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from plant_sim.commands.common import plain_warnings
+from plant_sim.fmu.arguments import add_fmu_arguments, axis_source
 from virtual_bus import cli
 from virtual_bus.formats.trace import read_trace
 
-from ..diagnosis.engine import signal_fits
-from ..diagnosis.replay import like_recording, prepare_replay, replay
-from ..fmu.arguments import add_fmu_arguments, axis_source
-from .common import plain_warnings
+from ..engine import signal_fits
+from ..replay import like_recording, prepare_replay, replay
 
 NAME = "simulate"
 HELP = (

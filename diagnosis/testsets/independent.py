@@ -1,6 +1,6 @@
 """Recordings of the concealed test set made on the independent plant.
 
-Same cases as :func:`plant_sim.diagnosis.synthetic.test_set` (families, effects, magnitudes,
+Same cases as :func:`diagnosis.synthetic.test_set` (families, effects, magnitudes,
 nominal files with the concealed effect's keys absent and the uncertain parameters 5–10 %
 off), but the hidden truth runs on this package's plant and the noise is its own:
 
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal as sps
 
-from plant_sim.diagnosis.synthetic import (
+from diagnosis.synthetic import (
     DECIMATION,
     FAMILIES,
     Case,
@@ -31,10 +31,9 @@ from plant_sim.diagnosis.synthetic import (
     reference_profile,
 )
 from plant_sim.physics.simulate import References
+from reference_plants.independent.plant import PlantOptions, simulate
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.trace import Trace
-
-from .plant import PlantOptions, simulate
 
 SEED_SHIFT = 7919
 

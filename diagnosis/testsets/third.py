@@ -1,6 +1,6 @@
 """The third plant's concealed-effect test set: its own families, excitation, effects,
-noise and nominal files (nothing taken from ``plant_sim.diagnosis.synthetic`` but the
-:class:`~plant_sim.diagnosis.synthetic.Case` / ``GeneratedCase`` records the matrix reads).
+noise and nominal files (nothing taken from ``diagnosis.synthetic`` but the
+:class:`~diagnosis.synthetic.Case` / ``GeneratedCase`` records the matrix reads).
 
 Families (both elastic in their data sheets, so the nominal files have an antiresonance):
 
@@ -33,13 +33,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plant_sim.diagnosis.effects import MODELS, Effect
-from plant_sim.diagnosis.synthetic import Case, GeneratedCase, case_list
+from diagnosis.effects import MODELS, Effect
+from diagnosis.synthetic import Case, GeneratedCase, case_list
 from plant_sim.physics.simulate import References
+from reference_plants.third.plant import Physics, axis_of, simulate
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.trace import MOTION_COLUMNS, Trace
-
-from .plant import Physics, axis_of, simulate
 
 #: Seeds of this set are offset from the others' (no shared random streams).
 SEED_SHIFT = 104_729
@@ -349,7 +348,7 @@ def process_load(level: float, n: int, cycle_s: float, rng: np.random.Generator)
 # ----------------------------------------------------------------------------------------
 def test_set(seed: int = 1, duration_s: float = 25.0, none_per_family: int = 2) -> list[Case]:
     """Every effect once per family and ``none_per_family`` recordings with nothing left out
-    (the bookkeeping of any plant's test set: :func:`plant_sim.diagnosis.synthetic.case_list`)."""
+    (the bookkeeping of any plant's test set: :func:`diagnosis.synthetic.case_list`)."""
     return case_list(
         {f.name: f.effects for f in FAMILIES.values()}, seed, duration_s, none_per_family
     )

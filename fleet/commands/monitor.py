@@ -1,4 +1,4 @@
-"""``python -m plant_sim monitor PATH... --out DIR``: condition monitoring of a fleet.
+"""``python -m fleet monitor PATH... --out DIR``: condition monitoring of a fleet.
 
 Finds every trace file (``*.csv``) and candump log (``*.log``) under the paths, runs the
 paper's vibration detector (Fig. 5) over each, gives each vibration episode its eq. 13 band
@@ -19,14 +19,15 @@ import json
 import sys
 from pathlib import Path
 
+from plant_sim.errors import SchedulerError
 from virtual_bus import cli
 from virtual_bus.progress import Progress
 
-from ..errors import FleetMapError, PlantSimError, SchedulerError
-from ..fleet.demo_fleet import FleetSpec, generate
-from ..fleet.job import confusion, confusion_markdown, monitor
-from ..fleet.ranking import Limits
-from ..fleet.sources import discover, load_axis_map
+from ..demo_fleet import FleetSpec, generate
+from ..errors import FleetError, FleetMapError
+from ..job import confusion, confusion_markdown, monitor
+from ..ranking import Limits
+from ..sources import discover, load_axis_map
 
 NAME = "monitor"
 HELP = "condition monitoring of a fleet: vibration episodes, eq. 13 verdicts, backlash trends"
@@ -97,20 +98,20 @@ def _demo_size(text: str) -> FleetSpec:
         m, a, r = (int(x) for x in text.lower().split("x"))
         return FleetSpec(machines=m, axes_per_machine=a, recordings_per_axis=r)
     except ValueError:
-        raise PlantSimError(f"--demo-size {text!r}: expected MxAxR, e.g. 4x3x12") from None
+        raise FleetError(f"--demo-size {text!r}: expected MxAxR, e.g. 4x3x12") from None
 
 
 def run(args: argparse.Namespace) -> int:
-    progress = Progress("plant_sim monitor", quiet=args.quiet)
+    progress = Progress("fleet monitor", quiet=args.quiet)
     if args.out.exists() and not args.out.is_dir():
-        raise PlantSimError(f"--out {args.out}: exists and is not a folder")
+        raise FleetError(f"--out {args.out}: exists and is not a folder")
     paths = list(args.paths)
     truth_file = None
     axis_map = None
     if args.demo:
         spec = _demo_size(args.demo_size)
         if min(spec.machines, spec.axes_per_machine, spec.recordings_per_axis) < 1:
-            raise PlantSimError("--demo-size: every count must be >= 1")
+            raise FleetError("--demo-size: every count must be >= 1")
         fleet = args.out / "demo_fleet"
         total = spec.machines * spec.axes_per_machine * spec.recordings_per_axis
         with progress.bar(total, f"simulating a demo fleet into {fleet}", "recording") as sim:
@@ -119,11 +120,11 @@ def run(args: argparse.Namespace) -> int:
         truth_file = fleet / "truth.json"
         axis_map = load_axis_map(fleet / "axes.toml")
     elif not paths:
-        raise PlantSimError("no PATH given: name recordings or folders (or use --demo)")
+        raise FleetError("no PATH given: name recordings or folders (or use --demo)")
     if args.axes is not None:
         axis_map = load_axis_map(args.axes)
     if args.drive_profile is not None and not args.drive_profile.is_file():
-        raise PlantSimError(f"--drive-profile {args.drive_profile}: no such file")
+        raise FleetError(f"--drive-profile {args.drive_profile}: no such file")
     found = discover(
         paths, axis_file=args.axis, axis_map=axis_map, drive_profile=args.drive_profile
     )
@@ -152,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
             on_result=on_result,
         )
     except SchedulerError as exc:
-        print(f"python -m plant_sim monitor: {exc}", file=sys.stderr)
+        print(f"python -m fleet monitor: {exc}", file=sys.stderr)
         return 1
     finally:
         bar.close()

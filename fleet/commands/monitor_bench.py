@@ -1,4 +1,4 @@
-"""``python -m plant_sim monitor-bench``: throughput and memory of the fleet monitor.
+"""``python -m fleet monitor-bench``: throughput and memory of the fleet monitor.
 
 Simulates a pool of distinct 25 s, 1 kHz, 7-signal recordings with the kernel once, then
 lays out fleets of N recordings (default 100, 1,000, 10,000) in the MACHINE/AXIS/DATE layout
@@ -25,16 +25,16 @@ from pathlib import Path
 
 import numpy as np
 
+from plant_sim.physics.simulate import References, simulate
 from virtual_bus.formats.axis import dump_axis, load_axis
 from virtual_bus.formats.trace import Trace
 from virtual_bus.progress import Progress
 from virtual_bus.shipped import PAPER_AXIS
 
-from ..fleet.analyse import analyse
-from ..fleet.demo_fleet import TRACE_COLUMNS, simulate_recording
-from ..fleet.job import monitor
-from ..fleet.sources import RecordingKind, Source, discover
-from ..physics.simulate import References, simulate
+from ..analyse import analyse
+from ..demo_fleet import TRACE_COLUMNS, simulate_recording
+from ..job import monitor
+from ..sources import RecordingKind, Source, discover
 
 NAME = "monitor-bench"
 HELP = "fleet monitor throughput (recordings/min at 100..10,000 recordings) and memory"
@@ -112,8 +112,8 @@ def _peak_rss_mb(analysis: Source) -> float:
 
     code = (
         "import resource, sys; from pathlib import Path\n"
-        "from plant_sim.fleet.analyse import analyse\n"
-        "from plant_sim.fleet.sources import Source, RecordingKind\n"
+        "from fleet.analyse import analyse\n"
+        "from fleet.sources import Source, RecordingKind\n"
         f"r = analyse(Source(Path({str(analysis.path)!r}), RecordingKind.TRACE, 'M', 'X', None,"
         f" Path({str(analysis.axis_file)!r})))\n"
         "assert r.ok, r.error\n"
@@ -130,7 +130,7 @@ def _peak_rss_mb(analysis: Source) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    progress = Progress("plant_sim monitor-bench", quiet=args.quiet)
+    progress = Progress("fleet monitor-bench", quiet=args.quiet)
     work = Path(tempfile.mkdtemp(prefix="monitor-bench-"))
     figures: dict[str, object] = {"workers": args.workers, "cpus": os.cpu_count()}
     try:

@@ -4,7 +4,7 @@ Prints simulated seconds per wall second for the section X scenario (both runs: 
 regulated) with the project kernel and, in the same run, with the plain
 ``scipy.integrate.solve_ivp`` implementation of the same equations (plant_sim/physics/reference.py),
 their ratio and the peak memory. With ``--all`` also the diagnosis and identification
-benchmarks (plant_sim/diagnosis/timing.py, plant_sim/identification.py) where installed.
+benchmarks (diagnosis/timing.py, plant_sim/identification.py) where installed.
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     if args.all:
         for module, func in (
             ("plant_sim.identification", "bench_identify"),
-            ("plant_sim.diagnosis.timing", "bench_diagnose"),
+            ("diagnosis.timing", "bench_diagnose"),
         ):
             try:
                 bench = getattr(importlib.import_module(module), func)

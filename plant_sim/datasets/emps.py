@@ -260,12 +260,3 @@ def import_emps(sources: Sequence[str | Path], out_dir: str | Path) -> list[Impo
         trace.to_csv(target)
         done.append(ImportedFile(rec, target, len(trace)))
     return done
-
-
-if __name__ == "__main__":  # the former entry point; the command is python -m plant_sim emps
-    import sys
-
-    from plant_sim.__main__ import main
-
-    argv = sys.argv[1:]
-    sys.exit(main(["emps", *(argv[1:] if argv[:1] == ["import"] else argv)]))

@@ -170,12 +170,3 @@ def relative_force_error(
 ) -> ForceError:
     """Simulate ``axis`` in the loop of ``trace`` (:func:`replay`) and score the force."""
     return compare_force(trace, replay(axis, trace, options), settle_s)
-
-
-if __name__ == "__main__":  # the former entry point; the command is python -m plant_sim force_error
-    import sys
-
-    from plant_sim.__main__ import main
-
-    argv = sys.argv[1:]
-    sys.exit(main(["force_error", *(argv[1:] if argv[:1] == ["import"] else argv)]))

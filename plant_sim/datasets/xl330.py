@@ -57,7 +57,7 @@ output shaft, torques in N m at the output shaft, as BAM's parameters are):
 
 Timing: every column at the log's own (non-uniform) ``timestamp``, the middle of the
 register reads of that sample; the goal of that sample was written ~1 ms before it. The
-replay (:mod:`plant_sim.diagnosis.replay`) accepts a non-uniform time base.
+replay (:mod:`diagnosis.replay`) accepts a non-uniform time base.
 """
 
 from __future__ import annotations

@@ -23,12 +23,12 @@ sensors                 exact                                          quantised
 sensor time offset      history per speed cycle                        history per current cycle
 ======================  =============================================  ==========================
 
-:mod:`.recording` turns it into noisy recordings with coloured noise for the concealed-effect
-matrix. Trace files are written with :class:`virtual_bus.formats.trace.Trace` (the FILE format
-only).
+:mod:`diagnosis.testsets.independent` turns it into noisy recordings with coloured noise for
+the concealed-effect matrix. Trace files are written with
+:class:`virtual_bus.formats.trace.Trace` (the FILE format only).
 """
 
-from tests.independent_plant.plant import (
+from reference_plants.independent.plant import (
     COLUMNS,
     PlantOptions,
     SteppedPlant,

@@ -1,5 +1,5 @@
 """A third test plant, written from the physics apart from ``plant_sim/physics/kernel.py`` and from
-``tests/independent_plant`` (neither imported nor copied), with modelling choices neither
+``reference_plants/independent`` (neither imported nor copied), with modelling choices neither
 shares:
 
 ======================  ===================  =====================  =========================
@@ -30,20 +30,11 @@ process load            2 Hz Butterworth     Ornstein–Uhlenbeck     random ste
 families                mill, slide          mill, slide            rotary table, vertical Z
 ======================  ===================  =====================  =========================
 
-:mod:`.cases` is its test set for the concealed-effect matrix (``plant_sim matrix --plant
-third``). The axis-file format is shared (:func:`.plant.axis_of` writes what a user would).
+Its test set for the concealed-effect matrix is :mod:`diagnosis.testsets.third`
+(``python -m diagnosis matrix --plant third``). The axis-file format is shared
+(:func:`.plant.axis_of` writes what a user would).
 """
 
-from .cases import FAMILIES, another_recording, concealment, generate, test_set
 from .plant import Physics, axis_of, simulate
 
-__all__ = [
-    "FAMILIES",
-    "Physics",
-    "another_recording",
-    "axis_of",
-    "concealment",
-    "generate",
-    "simulate",
-    "test_set",
-]
+__all__ = ["Physics", "axis_of", "simulate"]

@@ -3,8 +3,8 @@ friction, a PI current loop on an R-L winding with back-EMF and a voltage limit,
 encoder with interpolation error, and a trace recorder with its own anti-alias filter.
 
 Written from the physics for this package, neither importing nor copying
-``plant_sim/physics/kernel.py`` or ``tests/independent_plant`` (see the package docstring for the
-modelling choices that differ). Angles of the motor side in rad, the load in load units
+``plant_sim/physics/kernel.py`` or ``reference_plants/independent`` (see the package docstring
+for the modelling choices that differ). Angles of the motor side in rad, the load in load units
 (m or rad), forces on the load in N (N·m for a rotary axis).
 
 Equations (one step h):

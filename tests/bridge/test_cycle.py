@@ -267,7 +267,7 @@ def test_velocity_feedforward_of_the_axis_file_gives_the_analytic_ramp_error(gai
     """200Bh from ``control.velocity_feedforward``: on a steady ramp the bridge's loop holds
     the following error (1 − k_vff)·v/k_v (the PI speed loop delivers its set point exactly;
     ω_set = k_r·k_v·e + k_vff·ω_s), on the rigid slide without friction."""
-    from plant_sim.diagnosis.synthetic import slide_axis
+    from diagnosis.synthetic import slide_axis
     from plant_sim.physics.simulate import References
 
     axis = slide_axis().with_values(

@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant_sim.__main__ import main as plant_sim_main
-from plant_sim.diagnosis import DiagnosisOptions, diagnose
+from diagnosis import DiagnosisOptions, diagnose
+from diagnosis.__main__ import main as diagnosis_main
+from diagnosis.errors import DiagnosisError
 from plant_sim.errors import PlantSimError
 from plant_sim.physics.model import KernelOptions
 from plant_sim.physics.simulate import References, simulate
@@ -143,7 +144,7 @@ def test_random_axis_files_are_diagnosed_without_a_traceback() -> None:
         nominal = axis.with_values({"friction.coulomb": None}) if axis.friction.coulomb else axis
         try:
             d = diagnose(rec, nominal, options=DiagnosisOptions(max_effects=2))
-        except PlantSimError as exc:  # refused with one line: allowed
+        except (DiagnosisError, PlantSimError) as exc:  # refused with one line: allowed
             assert "\n" not in str(exc)
             refused += 1
             continue
@@ -182,7 +183,7 @@ def _lumped_rigid() -> AxisConfig:
 
 
 def _run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
-    code = plant_sim_main(["diagnose", *args, "--quiet"])
+    code = diagnosis_main(["diagnose", *args, "--quiet"])
     err = capsys.readouterr().err
     return code, err
 
@@ -237,7 +238,7 @@ def test_extreme_evidence_gives_valid_bounds() -> None:
     non-physical estimate never says the data sheet is wrong."""
     from types import SimpleNamespace
 
-    from plant_sim.diagnosis.parameters import parameter_for, physical
+    from diagnosis.parameters import parameter_for, physical
 
     axis = _lumped_rigid()
     scales = SimpleNamespace(torque_peak=100.0, speed_max=1.0)

@@ -1,4 +1,4 @@
-"""``python -m plant_sim diagnose``: report files, and bad input -> one line, exit 2."""
+"""``python -m diagnosis diagnose``: report files, and bad input -> one line, exit 2."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant_sim.__main__ import main
-from plant_sim.diagnosis.effects import Effect
-from plant_sim.diagnosis.synthetic import Case, generate, write_case
+from diagnosis.__main__ import main
+from diagnosis.effects import Effect
+from diagnosis.synthetic import Case, generate, write_case
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.formats.trace import read_trace
 
@@ -30,7 +30,7 @@ def case_files(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Pa
 
 
 def _diagnose(csv: Path, toml: Path, out: Path, *options: str) -> int:
-    """``plant_sim diagnose CSV --axis TOML --out OUT --no-progress OPTIONS``."""
+    """``diagnosis diagnose CSV --axis TOML --out OUT --no-progress OPTIONS``."""
     files = [str(csv), "--axis", str(toml), "--out", str(out)]
     return main(["diagnose", *files, "--no-progress", *options])
 
@@ -241,7 +241,7 @@ def test_implausible_units_warn(
     run goes on (here stopped early by a bad option on purpose would hide it, so run it
     short). The recording is checked against the axis file once: the command's check is the
     one the diagnosis goes on from."""
-    from plant_sim.diagnosis import engine
+    from diagnosis import engine
 
     calls: list[str] = []
     real = engine.prepare_replay

@@ -6,16 +6,16 @@ import re
 
 import pytest
 
-from plant_sim.diagnosis.effects import (
+from diagnosis.effects import (
     EFFECT_KEYS,
     GENERIC_EXPERIMENT,
     Effect,
     effects_in,
     experiment_for,
 )
-from plant_sim.diagnosis.parameters import contact_antiresonance, options_for
-from plant_sim.diagnosis.screen import effect_values
-from plant_sim.diagnosis.synthetic import slide_axis
+from diagnosis.parameters import contact_antiresonance, options_for
+from diagnosis.screen import effect_values
+from diagnosis.synthetic import slide_axis
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.shipped import SHARED_DIR
 

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import pytest
 
+from diagnosis import diagnose
 from plant_sim.datasets.emps import import_emps
 from plant_sim.datasets.force_error import relative_force_error
-from plant_sim.diagnosis import diagnose
 from tests.paths import CONFIG
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.formats.trace import read_trace

@@ -1,7 +1,7 @@
 """The whole diagnosis on a small, fast subset of the concealed test set.
 
 The full confusion matrix (every effect, two families, recordings with nothing left out) is
-long and runs in ``python -m plant_sim matrix``; here a few 12 s recordings check that the
+long and runs in ``python -m diagnosis matrix``; here a few 12 s recordings check that the
 evidence names a concealed effect at its hidden value, names nothing when nothing is left
 out, and that the closed-loop fit with it improves the held-out data.
 """
@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import pytest
 
-from plant_sim.diagnosis.effects import MODELS, Effect
-from plant_sim.diagnosis.engine import DiagnosisOptions, diagnose
-from plant_sim.diagnosis.errors import DiagnosisOptionError
-from plant_sim.diagnosis.synthetic import Case, generate
+from diagnosis.effects import MODELS, Effect
+from diagnosis.engine import DiagnosisOptions, diagnose
+from diagnosis.errors import DiagnosisOptionError
+from diagnosis.synthetic import Case, generate
 
 DURATION_S = 12.0
 

@@ -1,4 +1,4 @@
-"""Bounded multi-start simulation-error fitting (plant_sim/diagnosis/fit.py)."""
+"""Bounded multi-start simulation-error fitting (diagnosis/fit.py)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from plant_sim.diagnosis.errors import DiagnosisOptionError
-from plant_sim.diagnosis.evidence import data_scales
-from plant_sim.diagnosis.fit import (
+from diagnosis.errors import DiagnosisOptionError
+from diagnosis.evidence import data_scales
+from diagnosis.fit import (
     PERIODIC_COS,
     PERIODIC_SIN,
     DiscreteParameter,
@@ -19,9 +19,9 @@ from plant_sim.diagnosis.fit import (
     axis_with,
     fit,
 )
-from plant_sim.diagnosis.parameters import parameter_for
-from plant_sim.diagnosis.replay import prepare_replay
-from plant_sim.diagnosis.synthetic import slide_axis
+from diagnosis.parameters import parameter_for
+from diagnosis.replay import prepare_replay
+from diagnosis.synthetic import slide_axis
 from plant_sim.physics.model import KernelOptions
 from plant_sim.physics.simulate import References, simulate
 from virtual_bus.formats.axis import AxisConfig

@@ -12,14 +12,14 @@ import tomllib
 import numpy as np
 import pytest
 
-from plant_sim.diagnosis.adequacy import NOISE_RATIO_MAX, assess
-from plant_sim.diagnosis.effects import MODELS, Effect
-from plant_sim.diagnosis.engine import DiagnosisOptions, diagnose
-from plant_sim.diagnosis.metrics import fit_percent
-from plant_sim.diagnosis.mismatch import classify, reference_kinematics
-from plant_sim.diagnosis.parameters import UNCERTAINTY, key_unit, uncertainty_box, units
-from plant_sim.diagnosis.results import SignalFit
-from plant_sim.diagnosis.synthetic import slide_axis
+from diagnosis.adequacy import NOISE_RATIO_MAX, assess
+from diagnosis.effects import MODELS, Effect
+from diagnosis.engine import DiagnosisOptions, diagnose
+from diagnosis.metrics import fit_percent
+from diagnosis.mismatch import classify, reference_kinematics
+from diagnosis.parameters import UNCERTAINTY, key_unit, uncertainty_box, units
+from diagnosis.results import SignalFit
+from diagnosis.synthetic import slide_axis
 from plant_sim.physics.model import KernelOptions, default_substeps
 from plant_sim.physics.simulate import References, simulate
 from virtual_bus.formats.axis import AxisKind, axis_from_mapping, dump_axis

@@ -1,4 +1,4 @@
-"""The diagnosis on recordings of the independent plant (tests/independent_plant: another
+"""The diagnosis on recordings of the independent plant (reference_plants/independent: another
 integrator, smooth friction, its own contact law, PI current loop, quantised sensors,
 coloured noise) — written apart from the kernel the diagnosis simulates with: effects the
 issue's user saw explained away by a re-fit (a dead time, a position-periodic torque, a
@@ -11,12 +11,12 @@ import tomllib
 
 import pytest
 
-from plant_sim.diagnosis.effects import Effect
-from plant_sim.diagnosis.engine import diagnose
-from plant_sim.diagnosis.report import axis_text
-from plant_sim.diagnosis.synthetic import Case
-from tests.independent_plant import PlantOptions
-from tests.independent_plant.recording import generate
+from diagnosis.effects import Effect
+from diagnosis.engine import diagnose
+from diagnosis.report import axis_text
+from diagnosis.synthetic import Case
+from diagnosis.testsets.independent import generate
+from reference_plants.independent import PlantOptions
 from virtual_bus.formats.axis import AxisConfig, axis_from_mapping
 
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from plant_sim.diagnosis.metrics import (
+from diagnosis.metrics import (
     autocorrelation_time,
     fit_percent,
     improvement_test,

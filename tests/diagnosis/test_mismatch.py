@@ -1,10 +1,10 @@
-"""Operating conditions, mismatch windows and residual tests (plant_sim/diagnosis/mismatch.py)."""
+"""Operating conditions, mismatch windows and residual tests (diagnosis/mismatch.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from plant_sim.diagnosis.mismatch import (
+from diagnosis.mismatch import (
     Condition,
     classify,
     find_windows,

@@ -12,8 +12,8 @@ import pytest
 from scipy import signal as sps
 from scipy import stats
 
-from plant_sim.diagnosis import randomization
-from plant_sim.diagnosis.randomization import (
+from diagnosis import randomization
+from diagnosis.randomization import (
     Whitener,
     between_blocks_factor,
     face_value_test,

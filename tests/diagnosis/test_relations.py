@@ -10,13 +10,13 @@ import math
 import numpy as np
 import pytest
 
-from plant_sim.diagnosis import deflection as dfl
-from plant_sim.diagnosis import idim
-from plant_sim.diagnosis.effects import Effect
-from plant_sim.diagnosis.fit import PERIODIC_COS, PERIODIC_SIN
-from plant_sim.diagnosis.measured import measured
-from plant_sim.diagnosis.regression import evaluate_candidates, fit_relation
-from plant_sim.diagnosis.synthetic import slide_axis
+from diagnosis import deflection as dfl
+from diagnosis import idim
+from diagnosis.effects import Effect
+from diagnosis.fit import PERIODIC_COS, PERIODIC_SIN
+from diagnosis.measured import measured
+from diagnosis.regression import evaluate_candidates, fit_relation
+from diagnosis.synthetic import slide_axis
 from tests.paths import CONFIG
 from virtual_bus.formats.axis import AxisConfig, load_axis
 from virtual_bus.formats.trace import Trace
@@ -38,7 +38,7 @@ PUBLISHED = {
     not (EMPS / "DATA_EMPS.mat").exists(), reason=f"EMPS data not in {EMPS} (set EMPS_DATA)"
 )
 def test_idim_least_squares_reproduces_the_emps_authors_estimates() -> None:
-    """The torque balance of :mod:`plant_sim.diagnosis.idim` fitted by ordinary least squares
+    """The torque balance of :mod:`diagnosis.idim` fitted by ordinary least squares
     on the estimation recording gives the published reference model within 5 % (mass,
     viscous and Coulomb friction) and 10 % (the offset): the authors filtered and decimated
     their signals their own way, the method is theirs."""

@@ -1,4 +1,4 @@
-"""Closed-loop replay of an axis file like a recording (plant_sim/diagnosis/replay.py)."""
+"""Closed-loop replay of an axis file like a recording (diagnosis/replay.py)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import warnings
 import numpy as np
 import pytest
 
-from plant_sim.diagnosis.errors import DiagnosisInputError
-from plant_sim.diagnosis.metrics import fit_percent
-from plant_sim.diagnosis.replay import prepare_replay, replay, simulate_like
+from diagnosis.errors import DiagnosisInputError
+from diagnosis.metrics import fit_percent
+from diagnosis.replay import prepare_replay, replay, simulate_like
 from plant_sim.physics.model import KernelOptions
 from plant_sim.physics.simulate import References, simulate
 from virtual_bus.formats.axis import (

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plant_sim.diagnosis.effects import Effect
-from plant_sim.diagnosis.engine import diagnose
-from plant_sim.diagnosis.matrix import PLANTS, load_plant, run_case
-from plant_sim.diagnosis.synthetic import Case
+from diagnosis.effects import Effect
+from diagnosis.engine import diagnose
+from diagnosis.matrix import PLANTS, load_plant, run_case
+from diagnosis.synthetic import Case
 
 
 def _case(plant_name: str, effect: Effect | None, seed: int = 7) -> Case:

@@ -1,4 +1,4 @@
-"""``python -m plant_sim simulate --axis A --like REC --out SIM``."""
+"""``python -m diagnosis simulate --axis A --like REC --out SIM``."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant_sim.__main__ import main
-from plant_sim.diagnosis.synthetic import slide_axis
+from diagnosis.__main__ import main
+from diagnosis.synthetic import slide_axis
 from plant_sim.physics.model import KernelOptions
 from plant_sim.physics.simulate import References, simulate
 from tests.command_line import refused_in_one_line

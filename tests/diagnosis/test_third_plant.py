@@ -1,4 +1,4 @@
-"""The third test plant (tests/third_plant) against physics and against the kernel where the
+"""The third test plant (reference_plants/third) against physics and against the kernel where the
 two model the same thing: where its extra modelling choices are switched off, its closed
 loop agrees with plant_sim's kernel on the axis file it writes for itself; its LuGre friction
 settles on the Stribeck curve; its torque limit clips; its test set is what the matrix
@@ -12,12 +12,13 @@ import math
 import numpy as np
 import pytest
 
-from plant_sim.diagnosis.effects import MODELS, effects_in
-from plant_sim.diagnosis.metrics import nrmse
+from diagnosis.effects import MODELS, effects_in
+from diagnosis.metrics import nrmse
+from diagnosis.testsets import third as third_cases
+from diagnosis.testsets.third import FAMILIES
 from plant_sim.physics.model import KernelOptions, default_substeps
 from plant_sim.physics.simulate import References, simulate
-from tests.third_plant import FAMILIES, plant
-from tests.third_plant import cases as third_cases
+from reference_plants.third import plant
 from virtual_bus.formats.trace import MOTION_COLUMNS
 
 

@@ -18,8 +18,8 @@ from bridge.interpolator import Move
 from bridge.node import BridgeConfig
 from bridge.params import BridgeParams
 from bridge.profile import LoadSource, load_profile
+from fleet.candump import CandumpLayout, layout_for, read_candump_chunks
 from hil.harness import simulated_axis
-from plant_sim.fleet.candump import CandumpLayout, layout_for, read_candump_chunks
 from regulator import RegulatorConfig
 from tests.paths import ROOT
 from virtual_bus import Interface

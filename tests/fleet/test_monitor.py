@@ -1,4 +1,4 @@
-"""Fleet monitor (plant_sim.fleet): episodes, verdicts, lost motion, streaming, Dask, CLI.
+"""Fleet monitor (fleet): episodes, verdicts, lost motion, streaming, Dask, CLI.
 
 Independent references: analytic signals (a sinusoidal following error of known frequency,
 an ideal dead-zone backlash of known width), python-can's own candump log reader,
@@ -21,11 +21,11 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from plant_sim.fleet import candump, readers
-from plant_sim.fleet.analyse import analyse
-from plant_sim.fleet.demo_fleet import FleetSpec, generate, simulate_recording, write_candump
-from plant_sim.fleet.episodes import Verdict
-from plant_sim.fleet.sources import RecordingKind, Source, discover, load_axis_map
+from fleet import candump, readers
+from fleet.analyse import analyse
+from fleet.demo_fleet import FleetSpec, generate, simulate_recording, write_candump
+from fleet.episodes import Verdict
+from fleet.sources import RecordingKind, Source, discover, load_axis_map
 from tests.paths import ROOT
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.formats.trace import Trace
@@ -262,7 +262,7 @@ def test_axis_map_that_names_no_file(tmp_path):
 # --- the whole job, as a user runs it ---------------------------------------------------------
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "plant_sim", "monitor", *args],
+        [sys.executable, "-m", "fleet", "monitor", *args],
         cwd=ROOT,
         capture_output=True,
         text=True,

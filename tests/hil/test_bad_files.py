@@ -48,7 +48,7 @@ def test_demo_and_bench_refuse_bad_axis_files_before_they_start(
 @pytest.mark.parametrize(
     "argv",
     [
-        ["plant_sim", "simulate", "--like", "unused.csv", "--out", "unused-out.csv"],
+        ["diagnosis", "simulate", "--like", "unused.csv", "--out", "unused-out.csv"],
         ["bridge", "busload"],
         ["hil", "demo", "--out", "unused-dir"],
     ],

@@ -1,6 +1,6 @@
 """Issue 18's proof against what the project did not write: the beta_T the procedure finds on
 the project's simulated axis, applied to the independently written plant
-(tests/independent_plant: RK4, smoothed friction, a damped contact, a PI current loop,
+(reference_plants/independent: RK4, smoothed friction, a damped contact, a PI current loop,
 quantised encoders) with that plant's own modelling choices, cuts the section X limit cycle by
 at least 90 % and keeps the standstill error; compared with the optimum of a grid search over
 beta_T on that plant. The frequency response on that plant finds its antiresonance within the
@@ -23,10 +23,10 @@ from hil.offline import frequency_response, plant_runner, safety_of
 from plant_sim.fmu.arguments import AxisSource
 from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
 from plant_sim.paper.scenarios import SectionX
+from reference_plants.independent import SteppedPlant
 from regulator import RegulatorConfig
 from regulator.frequency_response import Multisine
 from regulator.tuning import Outcome, SearchConfig, TuningMotion, search
-from tests.independent_plant import SteppedPlant
 from tests.paths import CONFIG
 from virtual_bus.formats.axis import AxisConfig, load_axis
 

@@ -5,7 +5,7 @@ An accepted axis file must give an :class:`AxisPlant` whose outputs stay finite,
 :class:`SimulatedDrive` and a replay input (``prepare_replay``), or be refused by them with the
 package's own error in one line; the fleet monitor's streaming reader must refuse what
 ``read_trace`` refuses, except where docs/trace-file.md says it differs; a sample through
-``python -m plant_sim simulate/identify/diagnose/force_error/drive`` ends in one error line.
+``python -m diagnosis simulate/identify/diagnose/force_error/drive`` ends in one error line.
 """
 
 from __future__ import annotations
@@ -21,12 +21,15 @@ import pytest
 
 from bridge.errors import BridgeError
 from bridge.profile import load_profile
-from plant_sim.__main__ import main
-from plant_sim.diagnosis.replay import prepare_replay
+from diagnosis.__main__ import main as diagnosis_main
+from diagnosis.errors import DiagnosisError
+from diagnosis.replay import prepare_replay
+from fleet.candump import layout_for
+from fleet.errors import FleetError
+from fleet.readers import OPTIONAL, read_trace_chunks
+from plant_sim.__main__ import main as plant_sim_main
 from plant_sim.drive import DriveConfig, SimulatedDrive
 from plant_sim.errors import PlantSimError
-from plant_sim.fleet.candump import layout_for
-from plant_sim.fleet.readers import OPTIONAL, read_trace_chunks
 from plant_sim.physics.model import AxisPlant
 from tests import mutations
 from virtual_bus.formats.axis import AxisConfig, AxisKind, load_axis
@@ -34,7 +37,7 @@ from virtual_bus.formats.errors import FormatError
 from virtual_bus.formats.trace import REQUIRED_COLUMNS, read_trace
 from virtual_bus.shipped import PAPER_AXIS
 
-ERRORS = (FormatError, PlantSimError, BridgeError)
+ERRORS = (FormatError, PlantSimError, DiagnosisError, FleetError, BridgeError)
 #: where a command line takes the mutated file
 X = object()
 
@@ -145,6 +148,13 @@ def test_profile_mutants_give_the_monitor_a_scaling_or_one_line(tmp_path: Path) 
 
 def _sample(mutants: list[mutations.Mutant], k: int, seed: int) -> list[mutations.Mutant]:
     return random.Random(seed).sample(mutants, min(k, len(mutants)))
+
+
+def main(argv: list[str]) -> int:
+    """The command line a user types: the diagnosis's commands (simulate, diagnose) are
+    ``python -m diagnosis``'s, the others the simulator's."""
+    package = diagnosis_main if argv[0] in ("simulate", "diagnose") else plant_sim_main
+    return package(argv)
 
 
 def test_a_sample_through_the_command_line(tmp_path: Path, traces: list[Path]) -> None:

@@ -1,4 +1,5 @@
-"""``python -m plant_sim``: outputs of the paper command; bad input -> one line, exit 2.
+"""``python -m plant_sim`` (and the replays of ``python -m diagnosis``): outputs of the paper
+command; bad input -> one line, exit 2.
 
 Every "one line" below is counted: stderr holds exactly one line (no usage dump, no
 traceback, no Python warning with its source line).
@@ -14,17 +15,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant_sim.diagnosis.synthetic import slide_axis
+from diagnosis.synthetic import slide_axis
 from plant_sim.physics.model import KernelOptions
 from plant_sim.physics.simulate import References, simulate
 from tests.paths import ROOT
 from virtual_bus.formats.axis import AxisConfig, dump_axis
 from virtual_bus.formats.trace import Trace, read_trace
 
+#: The commands of the diagnosis's package (python -m diagnosis), beside the simulator's.
+DIAGNOSIS_COMMANDS = ("simulate", "diagnose", "matrix")
+
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    package = "diagnosis" if args and args[0] in DIAGNOSIS_COMMANDS else "plant_sim"
     return subprocess.run(
-        [sys.executable, "-m", "plant_sim", *args], cwd=ROOT, capture_output=True, text=True
+        [sys.executable, "-m", package, *args], cwd=ROOT, capture_output=True, text=True
     )
 
 

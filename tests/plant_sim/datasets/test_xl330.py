@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from diagnosis.replay import simulate_like
 from plant_sim.__main__ import main
 from plant_sim.datasets.xl330 import (
     BAM_M1,
@@ -33,7 +34,6 @@ from plant_sim.datasets.xl330 import (
     import_xl330,
     read_xl330_log,
 )
-from plant_sim.diagnosis.replay import simulate_like
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.formats.trace import read_trace
 

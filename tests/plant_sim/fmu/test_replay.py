@@ -1,4 +1,4 @@
-"""A recording replayed through an FMU (``plant_sim simulate --fmu``, the diagnosis's replay
+"""A recording replayed through an FMU (``diagnosis simulate --fmu``, the diagnosis's replay
 with an FMU as the plant): the FMU's own recording, replayed through the same FMU, comes back
 as it was -- the replay and the recording share the loop (regulator.loop) and the FMU is the
 same plant, bit for bit; a kernel replay of it does not."""
@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant_sim.__main__ import main
+from diagnosis.__main__ import main
+from plant_sim.__main__ import main as plant_sim_main
 from plant_sim.fmu import FmuPlant, FmuSpec, load_fmu, nominal_axis
 from plant_sim.physics.simulate import References, simulate_plant
 from tests.plant_sim.fmu.fmus import family_fmu
@@ -46,7 +47,7 @@ def test_the_fmus_recording_replayed_through_it_comes_back(
     # the kernel's model of the same data sheet is a model, not the machine
     kernel = tmp_path / "kernel.csv"
     axis_file = tmp_path / "axis.toml"
-    assert main(["fmu-axis", *fmu, "--out", str(axis_file)]) == 0
+    assert plant_sim_main(["fmu-axis", *fmu, "--out", str(axis_file)]) == 0
     argv = ["simulate", "--axis", str(axis_file), "--like", str(rec), "--out", str(kernel)]
     assert main(argv) == 0
     assert not np.array_equal(read_trace(kernel)["motor_torque"], a["motor_torque"])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from plant_sim.diagnosis.synthetic import slide_axis
+from diagnosis.synthetic import slide_axis
 from plant_sim.physics.simulate import References, simulate
 from virtual_bus.formats.axis import AxisConfig, PositionFeedback, axis_from_mapping
 from virtual_bus.formats.errors import AxisFileError

@@ -1,4 +1,4 @@
-"""The independent test plant (tests/independent_plant) against analytic results, and the
+"""The independent test plant (reference_plants/independent) against analytic results, and the
 compiled kernel against it: two implementations with different integrators, friction and
 contact laws, sensors and current loops must agree where the physics is the same."""
 
@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plant_sim.diagnosis.effects import Effect
-from plant_sim.diagnosis.matrix import load_plant, run_case
-from plant_sim.diagnosis.synthetic import FAMILIES, Case, reference_profile, slide_axis
+from diagnosis.effects import Effect
+from diagnosis.matrix import load_plant, run_case
+from diagnosis.synthetic import FAMILIES, Case, reference_profile, slide_axis
+from diagnosis.testsets.independent import generate
 from plant_sim.physics.simulate import References
 from plant_sim.physics.simulate import simulate as kernel_simulate
-from tests.independent_plant import PlantOptions, simulate
-from tests.independent_plant.recording import generate
+from reference_plants.independent import PlantOptions, simulate
 
 CYCLE_S = 0.001
 
@@ -116,11 +116,10 @@ def test_matrix_subset_on_the_independent_plant(
 
 
 def test_matrix_command_refuses_an_unknown_plant(capsys: pytest.CaptureFixture[str]) -> None:
-    from plant_sim.diagnosis.matrix import main
+    from diagnosis.__main__ import main
+    from tests.command_line import exit_status
 
-    with pytest.raises(SystemExit) as exit_:
-        main(["--plant", "bogus"])
-    assert exit_.value.code == 2
+    assert exit_status(main, ["matrix", "--plant", "bogus"]) == 2
     err = capsys.readouterr().err
     assert "--plant" in err and "'bogus'" in err and "independent" in err and "kernel" in err
     assert err.count("\n") == 1

@@ -1,19 +1,19 @@
 """The drive's speed-measurement filter (``control.speed_filter``) in the kernel, against the
 continuous first-order filter's analytic step response, solve_ivp (plant_sim/physics/reference.py)
-and the independent plant (tests/independent_plant), which implements its own filter."""
+and the independent plant (reference_plants/independent), which implements its own filter."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from plant_sim.diagnosis.synthetic import FAMILIES, reference_profile, slide_axis
+from diagnosis.synthetic import FAMILIES, reference_profile, slide_axis
 from plant_sim.physics import kernel as K
 from plant_sim.physics.model import KernelOptions, build_params, initial_state
 from plant_sim.physics.reference import simulate_reference
 from plant_sim.physics.simulate import References, simulate
-from tests.independent_plant import PlantOptions
-from tests.independent_plant import simulate as independent_simulate
+from reference_plants.independent import PlantOptions
+from reference_plants.independent import simulate as independent_simulate
 from tests.paths import CONFIG
 from virtual_bus.formats.axis import AxisConfig, load_axis
 

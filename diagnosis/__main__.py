@@ -1,0 +1,43 @@
+"""``python -m diagnosis COMMAND``: models against recordings (console script
+``backlash-diagnosis``).
+
+Each command lives in its own module under :mod:`diagnosis.commands` (``NAME``, ``HELP``,
+``add_arguments``, ``run``); :mod:`virtual_bus.cli` runs them. Bad arguments or files: one line,
+exit 2.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+
+from plant_sim.errors import PlantSimError
+from virtual_bus import cli
+from virtual_bus.formats import FormatError
+
+from .errors import DiagnosisError
+
+PROG = "python -m diagnosis"
+COMMANDS = ("diagnose", "simulate", "matrix")
+DESCRIPTION = (
+    "Where a recording and its axis file differ, which physics the model leaves out, the "
+    "fitted model and its proof on held-out data (docs/diagnosis.md)."
+)
+#: What ``pip install 'backlash-bridge[sim]'`` adds and every diagnosis command needs.
+SIM_MODULES = ("numba", "matplotlib")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    if (code := cli.missing_extra(PROG, SIM_MODULES, "sim")) is not None:
+        return code
+    return cli.main(
+        PROG,
+        DESCRIPTION,
+        cli.load_commands("diagnosis", COMMANDS),
+        argv,
+        failures=(cli.Failure((DiagnosisError, PlantSimError, FormatError, OSError)),),
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""One module per ``python -m diagnosis`` command (see diagnosis/__main__.py)."""

@@ -1,0 +1,22 @@
+"""Exceptions of :mod:`fleet`: one root, each subclass also the matching builtin."""
+
+from __future__ import annotations
+
+
+class FleetError(Exception):
+    """Root of every error raised by :mod:`fleet` (the fleet monitor)."""
+
+
+class RecordingError(FleetError, ValueError):
+    """A file that is not a usable recording (not a trace or a log, PDOs missing, corrupt).
+
+    ``path`` names the file; the monitor reports it in one line and goes on with the fleet.
+    """
+
+    def __init__(self, message: str, *, path: str | None = None) -> None:
+        super().__init__(message)
+        self.path = path
+
+
+class FleetMapError(FleetError, ValueError):
+    """An axis map (``--axes MAP.toml``) that cannot be used as a whole."""
