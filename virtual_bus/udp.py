@@ -26,7 +26,7 @@ also reads a classic standard data frame in place (:func:`parse_plain`: the
 fields at the positions python-can's ``pack_message`` puts them; anything else is left to
 msgpack and python-can's checks) and gives templates of the frames such a loop sends
 (:meth:`LoopbackUdpBus.template`: the datagram ``send`` would make, with the payload's
-offset). ``tests/test_wire_codecs.py`` checks both against python-can's ``pack_message`` and
+offset). tests/virtual_bus/test_framing.py checks both against python-can's ``pack_message`` and
 ``unpack_message``.
 """
 

@@ -18,7 +18,7 @@ evaluation per step) with ``nsub`` fixed substeps per speed cycle.
 Friction is a set-valued force: a kick never lets Coulomb friction reverse the load's motion
 (the velocity is clamped to zero), and a load at rest stays at rest while the applied force is
 within the static level (Karnopp). The dead-zone impacts are resolved by the substep, which is
-chosen so that ω_r·dt <= 0.1 (plant_sim.physics.model.MAX_OMEGA_DT); ``tests/test_kernel.py`` shows
+chosen so that ω_r·dt <= 0.1 (model.MAX_OMEGA_DT); tests/plant_sim/physics/test_convergence.py shows
 step-halving convergence.
 
 Control (sampled as in a drive): every speed cycle the motor speed is measured as the backward

@@ -15,7 +15,7 @@ The speed filter (``control.speed_filter``) is its ODE, integrated by solve_ivp 
 speed cycle with the cycle's encoder difference as input.
 
 It is the benchmark's baseline (``python -m plant_sim bench``) and the second implementation
-the kernel is tested against (tests/test_kernel_reference.py).
+the kernel is tested against (tests/plant_sim/physics/test_convergence.py).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Mutated drive profiles, DCF files and axis files (``tests/mutations.py``) through the
+"""Mutated drive profiles, DCF files and axis files (``tests/mutations/``) through the
 bridge's readers and command line (issue 20, bad files).
 
 ``load_profile`` and ``read_dcf`` accept each mutant or refuse it with a :class:`BridgeError`

@@ -1,4 +1,4 @@
-"""Mutated axis files (``tests/mutations.py``) given to ``python -m hil``, and a few through
+"""Mutated axis files (``tests/mutations/``) given to ``python -m hil``, and a few through
 real processes of every package's command line: refused quickly, in one error line, exit 2,
 nothing written (issue 20, bad files)."""
 

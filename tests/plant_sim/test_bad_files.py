@@ -1,4 +1,4 @@
-"""Mutated axis files, traces and drive profiles (``tests/mutations.py``) through what the
+"""Mutated axis files, traces and drive profiles (``tests/mutations/``) through what the
 simulator builds from them and through its command line (issue 20, bad files).
 
 An accepted axis file must give an :class:`AxisPlant` whose outputs stay finite, a

@@ -1,7 +1,7 @@
 """Mutated axis files and trace files through the format readers (issue 20, bad files).
 
 Every shipped axis file and a few good traces (one the project's writer wrote, the EMPS and
-XL330 recordings where ``shared/`` has them) mutated systematically (``tests/mutations.py``):
+XL330 recordings where ``shared/`` has them) mutated systematically (``tests/mutations/``):
 ``load_axis`` and ``read_trace`` accept each mutant or refuse it with a ``FormatError`` in one
 line that names the file and the key or column; never a builtin error; every mutant the format
 documents (docs/axis-file.md, docs/trace-file.md) call invalid is refused, every one they call

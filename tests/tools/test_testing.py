@@ -1,5 +1,6 @@
-"""``python3 dev.py test`` in two parts (the host's, and the vcan tests in a guest): the
-summary is read from pytest's own JUnit XML, and one exit status stands for both parts."""
+"""``python3 dev.py test`` (tools/testing.py) in two parts (the host's, and the vcan tests in a
+guest): the summary is read from pytest's own JUnit XML, and one exit status stands for both
+parts."""
 
 from __future__ import annotations
 
@@ -9,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.dev_module import dev
 from tests.paths import ROOT
+from tools import testing
 
 
 def test_counts_are_read_from_pytests_junit_xml(tmp_path: Path) -> None:
@@ -40,11 +41,11 @@ def test_counts_are_read_from_pytests_junit_xml(tmp_path: Path) -> None:
         capture_output=True,
         check=False,
     )
-    counts = dev.Counts.from_junit(xml)
+    counts = testing.Counts.from_junit(xml)
     assert counts is not None
     assert (counts.passed, counts.failed, counts.skipped) == (2, 2, 1)  # an error counts failed
     assert (counts + counts).text() == "4 passed, 4 failed, 2 skipped"
-    assert dev.Counts.from_junit(tmp_path / "missing.xml") is None
+    assert testing.Counts.from_junit(tmp_path / "missing.xml") is None
 
 
 @pytest.mark.parametrize(
@@ -54,7 +55,7 @@ def test_counts_are_read_from_pytests_junit_xml(tmp_path: Path) -> None:
 def test_one_exit_status_for_both_parts(host: int, guest: int, status: int) -> None:
     """pytest: 0 passed, 1 tests failed, 2 interrupted, 3 internal error, 5 nothing
     collected (a part whose selection holds no test while the other ran)."""
-    assert dev.combined_status(host, guest) == status
+    assert testing.combined_status(host, guest) == status
 
 
 def test_the_split_is_by_the_vcan_marker(
@@ -67,11 +68,11 @@ def test_the_split_is_by_the_vcan_marker(
     pytester.makepyfile(
         "import pytest\n@pytest.mark.vcan\ndef test_on_vcan(): pass\ndef test_anywhere(): pass\n"
     )
-    monkeypatch.setenv(dev.VCAN_PART_ENV, "without")
+    monkeypatch.setenv(testing.VCAN_PART_ENV, "without")
     pytester.runpytest("-p", "no:cacheprovider").assert_outcomes(passed=1, deselected=1)
-    monkeypatch.setenv(dev.VCAN_PART_ENV, "only")
+    monkeypatch.setenv(testing.VCAN_PART_ENV, "only")
     result = pytester.runpytest("-p", "no:cacheprovider")
-    if dev.host_vcan_problem() is None:
+    if testing.host_vcan_problem() is None:
         result.assert_outcomes(passed=1, deselected=1)
     else:  # here: no vcan0, so the test the guest was to run errs in its setup, saying why
         result.assert_outcomes(errors=1, deselected=1)
