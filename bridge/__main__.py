@@ -2,7 +2,7 @@
 freqresp, tune.
 
 Each command is a module under :mod:`bridge.commands` (``NAME``, ``HELP``,
-``add_arguments``, ``run``), run by :mod:`virtual_bus.cli`. Bad arguments or files end with a
+``add_arguments``, ``run``), run by :mod:`cmdline.cli`. Bad arguments or files end with a
 one-line message and exit status 2 (no traceback); a failure while running (drive does not
 answer, bus error) with a one-line message and 1.
 """
@@ -15,8 +15,9 @@ from collections.abc import Sequence
 
 import can
 
+from cmdline import cli
 from regulator.errors import RegulatorError
-from virtual_bus import VirtualBusError, cli
+from virtual_bus import VirtualBusError
 from virtual_bus.errors import BusUnavailableError, RealTimeRefused
 from virtual_bus.formats import FormatError
 

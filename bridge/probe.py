@@ -27,7 +27,8 @@ import can
 import canopen
 from canopen.objectdictionary import ODVariable
 
-from virtual_bus import BusConfig, cli, open_bus
+from cmdline import cli
+from virtual_bus import BusConfig, open_bus
 from virtual_bus.contract import TPDO_MAPPING_BASE, NmtCommand, pdo_comm_index, pdo_mapping_index
 from virtual_bus.formats.axis import AxisKind
 

@@ -2,7 +2,7 @@
 ``backlash-diagnosis``).
 
 Each command lives in its own module under :mod:`diagnosis.commands` (``NAME``, ``HELP``,
-``add_arguments``, ``run``); :mod:`virtual_bus.cli` runs them. Bad arguments or files: one line,
+``add_arguments``, ``run``); :mod:`cmdline.cli` runs them. Bad arguments or files: one line,
 exit 2.
 """
 
@@ -11,8 +11,8 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
+from cmdline import cli
 from plant_sim.errors import PlantSimError
-from virtual_bus import cli
 from virtual_bus.formats import FormatError
 
 from .errors import DiagnosisError

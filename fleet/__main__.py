@@ -1,7 +1,7 @@
 """``python -m fleet COMMAND``: condition monitoring of a fleet of axes (console script
 ``backlash-fleet``; docs/monitor.md).
 
-Each command lives in its own module under :mod:`fleet.commands`; :mod:`virtual_bus.cli` runs
+Each command lives in its own module under :mod:`fleet.commands`; :mod:`cmdline.cli` runs
 them. Bad arguments or files: one line, exit 2.
 """
 
@@ -10,8 +10,8 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
+from cmdline import cli
 from plant_sim.errors import PlantSimError
-from virtual_bus import cli
 from virtual_bus.formats import FormatError
 
 from .errors import FleetError

@@ -1,7 +1,7 @@
 """``python -m hil COMMAND``: the bridge against the simulated drive (demo, bench) and its
 commissioning on the simulated axis offline (tune, freqresp).
 
-Each command is a module under :mod:`hil.commands` run by :mod:`virtual_bus.cli`, with the
+Each command is a module under :mod:`hil.commands` run by :mod:`cmdline.cli`, with the
 same failures as ``python -m bridge`` (one line; 2 for bad input, 1 for a failing drive or
 bus) plus the simulator's input errors.
 """
@@ -13,10 +13,10 @@ from collections.abc import Sequence
 
 from bridge.__main__ import FAILURES as BRIDGE_FAILURES
 from bridge.__main__ import quiet_sdo_client_logging
+from cmdline import cli
 from plant_sim.__main__ import SIM_MODULES
 from plant_sim.errors import PlantSimError
 from regulator.errors import RegulatorError
-from virtual_bus import cli
 
 PROG = "python -m hil"
 COMMANDS = ("demo", "bench", "tune", "freqresp", "sweep")

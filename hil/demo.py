@@ -22,6 +22,7 @@ import numpy as np
 from bridge.cycle import BridgeState
 from bridge.errors import BridgeError
 from bridge.params import BridgeParams
+from cmdline.progress import Progress, silent
 from plant_sim.fmu.arguments import AxisSource
 from plant_sim.paper.outputs import (
     SETTLE_AFTER_DISTURBANCE_S as SETTLE_S,
@@ -41,7 +42,6 @@ from regulator import RegulatorConfig
 from virtual_bus import Interface
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.trace import Trace
-from virtual_bus.progress import Progress, silent
 
 from .harness import run_references
 from .loop import run_loop

@@ -1,7 +1,7 @@
 """``python -m plant_sim COMMAND``: the simulator's command line.
 
 Each command lives in its own module under :mod:`plant_sim.commands` exposing ``NAME``,
-``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``; :mod:`virtual_bus.cli` runs
+``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``; :mod:`cmdline.cli` runs
 them (the framework of every command line of the project). Bad arguments or bad files end
 with a one-line message and exit code 2, never a traceback.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from virtual_bus import cli
+from cmdline import cli
 from virtual_bus.errors import RealTimeRefused
 from virtual_bus.formats import FormatError
 

@@ -1,7 +1,7 @@
 """Command line: ``python -m virtual_bus setup [NAME]``, ``python -m virtual_bus probe`` and
 ``python -m virtual_bus guest [--kernel PATH] [--mem MB] -- COMMAND ARGS...``.
 
-Commands are modules under :mod:`virtual_bus.commands`, run by :mod:`virtual_bus.cli`.
+Commands are modules under :mod:`virtual_bus.commands`, run by :mod:`cmdline.cli`.
 Exit status: 0 ok, 1 environment problem (one-line message), 2 bad arguments.
 """
 
@@ -10,9 +10,9 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from virtual_bus import cli
+from cmdline import cli
 from virtual_bus.errors import VcanSetupError, VirtualBusError
-from virtual_bus.guest_kernel import GuestError
+from virtual_bus.guest.kernel import GuestError
 from virtual_bus.vcan import HostProbe, Runner, run_ip
 
 PROG = "python -m virtual_bus"

@@ -38,7 +38,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from .cli import integer
+from cmdline.cli import integer
+
 from .errors import RealTimeConfigError, RealTimeRefused
 
 #: mlockall flags (linux/mman.h).

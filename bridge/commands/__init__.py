@@ -1,1 +1,1 @@
-"""One module per ``python -m bridge`` command (see bridge/__main__.py, virtual_bus/cli.py)."""
+"""One module per ``python -m bridge`` command (see bridge/__main__.py, cmdline/cli.py)."""

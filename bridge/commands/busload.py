@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from virtual_bus import cli
+from cmdline import cli
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.shipped import PAPER_AXIS
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from cmdline import cli
 from regulator import RegulatorConfig
 from regulator.errors import RegulatorError
-from virtual_bus import cli
 from virtual_bus.formats.axis import AxisConfig, load_axis
 
 from ..timing import TimeMode

@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cmdline import cli
 from regulator.frequency_response import Multisine
-from virtual_bus import cli
 
 from ..commission.session import CommissioningStopped
 

@@ -12,7 +12,7 @@ import argparse
 import json
 from pathlib import Path
 
-from virtual_bus import cli
+from cmdline import cli
 from virtual_bus.errors import RealTimeRefused
 from virtual_bus.realtime import check_cpu, cpu_number
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from virtual_bus import BusConfig, cli
+from cmdline import cli
+from virtual_bus import BusConfig
 from virtual_bus.realtime import add_realtime_options, realtime_options
 
 from .. import od as objdict

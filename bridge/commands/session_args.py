@@ -9,7 +9,8 @@ import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 
-from virtual_bus import BusConfig, cli, open_bus
+from cmdline import cli
+from virtual_bus import BusConfig, open_bus
 
 from .. import od as objdict
 from ..node import Bridge, BridgeConfig

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from cmdline import cli
 from regulator.tuning import (
     Outcome,
     SearchConfig,
@@ -15,7 +16,6 @@ from regulator.tuning import (
     TuningError,
     TuningMotion,
 )
-from virtual_bus import cli
 
 from ..commission.session import CommissioningStopped
 

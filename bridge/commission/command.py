@@ -36,7 +36,8 @@ import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary import datatypes as dt
 
-from virtual_bus import BusConfig, cli, open_bus
+from cmdline import cli
+from virtual_bus import BusConfig, open_bus
 from virtual_bus.contract import SdoAbort
 from virtual_bus.shipped import DRIVE_EDS
 

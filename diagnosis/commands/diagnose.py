@@ -11,12 +11,12 @@ from __future__ import annotations
 import argparse
 import warnings
 
+from cmdline import cli
+from cmdline.progress import Progress
 from plant_sim.commands.common import plain_warnings
-from virtual_bus import cli
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.formats.errors import TraceWarning
 from virtual_bus.formats.trace import read_trace
-from virtual_bus.progress import Progress
 
 from ..effects import Effect
 from ..engine import DiagnosisOptions, diagnose, prepare

@@ -12,8 +12,8 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from virtual_bus import cli
-from virtual_bus.progress import Progress
+from cmdline import cli
+from cmdline.progress import Progress
 
 from ..matrix import (
     PLANTS,

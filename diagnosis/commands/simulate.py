@@ -15,9 +15,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from cmdline import cli
 from plant_sim.commands.common import plain_warnings
 from plant_sim.fmu.arguments import add_fmu_arguments, axis_source
-from virtual_bus import cli
 from virtual_bus.formats.trace import read_trace
 
 from ..engine import signal_fits

@@ -19,9 +19,9 @@ import json
 import sys
 from pathlib import Path
 
+from cmdline import cli
+from cmdline.progress import Progress
 from plant_sim.errors import SchedulerError
-from virtual_bus import cli
-from virtual_bus.progress import Progress
 
 from ..demo_fleet import FleetSpec, generate
 from ..errors import FleetError, FleetMapError

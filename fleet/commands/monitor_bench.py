@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
+from cmdline.progress import Progress
 from plant_sim.physics.simulate import References, simulate
 from virtual_bus.formats.axis import dump_axis, load_axis
 from virtual_bus.formats.trace import Trace
-from virtual_bus.progress import Progress
 from virtual_bus.shipped import PAPER_AXIS
 
 from ..analyse import analyse

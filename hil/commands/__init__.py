@@ -1,1 +1,1 @@
-"""One module per ``python -m hil`` command (see hil/__main__.py, virtual_bus/cli.py)."""
+"""One module per ``python -m hil`` command (see hil/__main__.py, cmdline/cli.py)."""

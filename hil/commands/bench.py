@@ -10,9 +10,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from cmdline import cli
+from cmdline.progress import Progress
 from plant_sim.fmu.arguments import add_fmu_arguments, fmu_spec
-from virtual_bus import cli
-from virtual_bus.progress import Progress
 from virtual_bus.realtime import add_realtime_options, cpu_number, realtime_options
 from virtual_bus.shipped import PAPER_AXIS
 

@@ -6,11 +6,11 @@ import argparse
 from pathlib import Path
 
 from bridge.params import BridgeParams
+from cmdline import cli
 from plant_sim.fmu.arguments import AxisSource, add_fmu_arguments, axis_source
 from plant_sim.physics.model import AxisPlant
 from regulator import RegulatorConfig
 from regulator.errors import RegulatorError
-from virtual_bus import cli
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.shipped import PAPER_AXIS
 

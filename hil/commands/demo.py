@@ -6,9 +6,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from cmdline import cli
+from cmdline.progress import Progress
 from plant_sim.fmu.arguments import add_fmu_arguments
-from virtual_bus import Interface, cli
-from virtual_bus.progress import Progress
+from virtual_bus import Interface
 
 from .common import simulated_source
 

@@ -7,9 +7,9 @@ from __future__ import annotations
 import argparse
 import json
 
+from cmdline import cli
+from cmdline.progress import Progress
 from plant_sim.fmu.arguments import add_fmu_arguments, fmu_spec
-from virtual_bus import cli
-from virtual_bus.progress import Progress
 
 NAME = "sweep"
 HELP = "one task (limit-cycle, ...) over many seeds of an FMU family, on Dask"

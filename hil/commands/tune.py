@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from bridge.commands.tune import add_tuning_arguments, options_from, trial_line, write_report
-from virtual_bus import cli
+from cmdline import cli
 
 from .common import add_axis_and_out, simulated_source
 

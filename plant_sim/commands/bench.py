@@ -18,8 +18,8 @@ import statistics
 import time
 from dataclasses import asdict, is_dataclass
 
-from virtual_bus import cli
-from virtual_bus.progress import Progress
+from cmdline import cli
+from cmdline.progress import Progress
 
 from ..paper.outputs import LIMIT_CYCLE_VISCOUS
 from ..paper.scenarios import SectionX, run_section_x

@@ -1,4 +1,4 @@
-"""Helpers shared by the ``python -m plant_sim`` commands (argument types: virtual_bus.cli)."""
+"""Helpers shared by the ``python -m plant_sim`` commands (argument types: cmdline.cli)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from cmdline import cli
 from regulator import RegulatorConfig
 from regulator.errors import RegulatorError
-from virtual_bus import cli
 from virtual_bus.formats.axis import AxisConfig, load_axis
 from virtual_bus.shipped import CONFIG_DIR, PAPER_AXIS
 

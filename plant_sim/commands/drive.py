@@ -29,7 +29,8 @@ import tomllib
 from pathlib import Path
 from types import FrameType
 
-from virtual_bus import BusConfig, VirtualBusError, cli, open_bus
+from cmdline import cli
+from virtual_bus import BusConfig, VirtualBusError, open_bus
 from virtual_bus.config import CIA301_BITRATES, DEFAULT_BITRATE
 from virtual_bus.realtime import add_realtime_options, realtime_options
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from virtual_bus import cli
+from cmdline import cli
 
 from ..datasets.emps import (
     DATA_DIR,

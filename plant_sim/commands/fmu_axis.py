@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from virtual_bus import cli
+from cmdline import cli
 
 from ..errors import FmuError
 from ..fmu.arguments import add_fmu_arguments, fmu_spec

@@ -9,9 +9,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from cmdline.progress import Progress
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.formats.trace import read_trace
-from virtual_bus.progress import Progress
 
 from ..datasets.force_error import check_replay_input, relative_force_error
 from .common import plain_warnings

@@ -11,10 +11,10 @@ import argparse
 import json
 from pathlib import Path
 
-from virtual_bus import cli
+from cmdline import cli
+from cmdline.progress import Progress
 from virtual_bus.formats.axis import dump_axis
 from virtual_bus.formats.trace import check_time_base, read_trace
-from virtual_bus.progress import Progress
 
 from ..errors import ScenarioError
 from ..identification import SECTION_IX_PARAMETERS, IdentifyOptions, identify

@@ -14,10 +14,10 @@ from __future__ import annotations
 import argparse
 import json
 
-from virtual_bus import cli
+from cmdline import cli
+from cmdline.progress import Progress
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.trace import Trace
-from virtual_bus.progress import Progress
 
 from ..paper.outputs import (
     files_line,

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from virtual_bus import cli
+from cmdline import cli
+from cmdline.progress import Progress, silent
 from virtual_bus.formats.axis import AxisConfig
-from virtual_bus.progress import Progress, silent
 
 from ..paper.outputs import LIMIT_CYCLE_VISCOUS, summarize
 from ..paper.scenarios import SectionX, run_section_x

@@ -14,7 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from virtual_bus import cli
+from cmdline import cli
 
 from ..datasets.xl330 import (
     DATA_DIR,

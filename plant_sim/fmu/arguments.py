@@ -14,7 +14,7 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
-from virtual_bus import cli
+from cmdline import cli
 from virtual_bus.formats.axis import AxisConfig, load_axis
 
 from ..errors import FmuError

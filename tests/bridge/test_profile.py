@@ -21,11 +21,12 @@ from bridge.node import BridgeConfig
 from bridge.params import BridgeParams
 from bridge.profile import DriveProfile, LoadSource, ProfileError, load_profile, render_profile
 from bridge.run import check_bus_load
+from cmdline import cli
 from hil.harness import simulated_axis
 from regulator import RegulatorConfig
 from tests.adapt_helpers import ENCODER_EDS, TECHNOSOFT_EDS, mirror_mode, require_eds
 from tests.paths import ROOT
-from virtual_bus import Interface, cli
+from virtual_bus import Interface
 from virtual_bus.formats.axis import load_axis
 
 DRIVES = ROOT / "config" / "drives"

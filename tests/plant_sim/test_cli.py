@@ -119,8 +119,8 @@ def test_bad_arguments_exit_2_with_one_line(args: tuple[str, ...], message: str)
 
 
 def test_sweep_takes_k_v_with_commas_or_spaces() -> None:
+    from cmdline import cli
     from plant_sim.__main__ import COMMANDS
-    from virtual_bus import cli
 
     parser = cli.build_parser("p", "d", cli.load_commands("plant_sim", COMMANDS))
     for argv in (["--kv", "20,30"], ["--kv", "20", "30"]):

@@ -1,4 +1,4 @@
-"""The command-line framework (virtual_bus/cli.py) and the progress helper (progress.py).
+"""The command-line framework (cmdline/cli.py) and the progress helper (progress.py).
 
 Independent references: argparse's own parsing (the framework only adds types and the
 one-line error), the CiA 301 node-ID range 1..127, and the text a stream receives.
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from virtual_bus import cli
-from virtual_bus.progress import Progress
+from cmdline import cli
+from cmdline.progress import Progress
 
 
 def _module(run: object) -> types.ModuleType:

@@ -20,8 +20,7 @@ import pytest
 
 from tests.paths import ROOT
 from virtual_bus.__main__ import main
-from virtual_bus.guest import GuestConfig, boot_probe, guest_env, init_script, run_in_guest
-from virtual_bus.guest_kernel import (
+from virtual_bus.guest.kernel import (
     FP_REGS_PANIC,
     GuestError,
     GuestProblem,
@@ -33,6 +32,7 @@ from virtual_bus.guest_kernel import (
     module_order,
     require_tool,
 )
+from virtual_bus.guest.vm import GuestConfig, boot_probe, guest_env, init_script, run_in_guest
 
 
 @pytest.fixture(scope="module")

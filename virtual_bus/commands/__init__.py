@@ -1,1 +1,1 @@
-"""One module per ``python -m virtual_bus`` command (see virtual_bus/cli.py)."""
+"""One module per ``python -m virtual_bus`` command (see cmdline/cli.py)."""

@@ -6,17 +6,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from virtual_bus import cli
-from virtual_bus.guest import (
-    DEFAULT_MEM_MB,
-    DEFAULT_STALL_S,
-    MEM_RANGE_MB,
-    GuestConfig,
-    boot_probe,
-    default_streams,
-    run_in_guest,
-)
-from virtual_bus.guest_kernel import (
+from cmdline import cli
+from cmdline.progress import Progress
+from virtual_bus.guest.kernel import (
     GuestError,
     GuestProblem,
     ProbeCache,
@@ -25,7 +17,15 @@ from virtual_bus.guest_kernel import (
     find_kernel,
     probe,
 )
-from virtual_bus.progress import Progress
+from virtual_bus.guest.vm import (
+    DEFAULT_MEM_MB,
+    DEFAULT_STALL_S,
+    MEM_RANGE_MB,
+    GuestConfig,
+    boot_probe,
+    default_streams,
+    run_in_guest,
+)
 
 NAME = "guest"
 HELP = "run a command in a User-mode Linux guest with SocketCAN vcan0 up (no SocketCAN needed here)"

@@ -2,7 +2,7 @@
 
 Where the host kernel has no SocketCAN (containers, WSL, CI runners, this project's
 development VM), a User-mode Linux (UML) kernel started as an ordinary process gives a real
-kernel CAN stack. :func:`run_in_guest` boots one (:mod:`virtual_bus.guest_kernel` chooses
+kernel CAN stack. :func:`run_in_guest` boots one (:mod:`virtual_bus.guest.kernel` chooses
 it) with the host's root file system as its root (``hostfs``: every host file is there
 under its own path, read and written with the rights of the user running the guest), loads
 the CAN modules, creates ``vcan0``, runs the command in the current directory with the
@@ -49,7 +49,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 from virtual_bus.errors import BusConfigError
-from virtual_bus.guest_kernel import (
+from virtual_bus.guest.kernel import (
     GuestError,
     GuestProblem,
     Kernel,
@@ -335,7 +335,7 @@ def _last(outs: Sequence[_Follower], console: _Follower) -> str:
 
 def boot_probe(kernel: Kernel) -> str | None:
     """Boot ``kernel`` with an init that only reports back: ``None`` if it ran, else why
-    not (the probe of :func:`virtual_bus.guest_kernel.find_kernel`)."""
+    not (the probe of :func:`virtual_bus.guest.kernel.find_kernel`)."""
     try:
         _boot(kernel, (), GuestConfig(mem_mb=256, stall_s=120.0), None, None, time.monotonic)
     except GuestError as exc:

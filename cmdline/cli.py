@@ -13,7 +13,7 @@ What every command gets:
   :func:`number_list` (``--kv 20,30`` and ``--kv 20 30`` alike), :func:`existing_file`,
   :func:`output_dir`, :func:`new_file`;
 * ``--quiet`` on every command (:func:`add_quiet`; added when a command does not add it) for
-  the progress of :mod:`virtual_bus.progress`.
+  the progress of :mod:`cmdline.progress`.
 
 It lives in :mod:`virtual_bus`, the lowest package (it imports nothing else of the project),
 so ``plant_sim`` and ``bridge`` import it without a cycle. Standard library only.

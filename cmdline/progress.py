@@ -14,7 +14,7 @@ Usage in a command::
             ...
             bar.update()
 
-It lives next to :mod:`virtual_bus.cli` (the lowest package) so every package can use it.
+It lives next to :mod:`cmdline.cli` (the lowest package) so every package can use it.
 """
 
 from __future__ import annotations
@@ -24,10 +24,8 @@ import time
 from collections.abc import Callable
 from typing import TextIO
 
-from .closing import Closing
 
-
-class Bar(Closing):
+class Bar:
     """A counted stage: ``update(n)``, ``set_description(text)`` (a new sub-stage), ``close``.
 
     Compatible with what :func:`diagnosis.engine.diagnose` expects of a progress bar.
@@ -48,6 +46,12 @@ class Bar(Closing):
         else:
             size = f" ({total} {unit}{'' if total == 1 else 's'})" if total else ""
             progress.stage(f"{desc}{size}")
+
+    def __enter__(self) -> Bar:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
 
     def update(self, n: int = 1) -> None:
         self.n += n
