@@ -1,50 +1,18 @@
-"""The tasks a sweep runs per axis, registered by name in :data:`TASKS`.
-
-A task is a module-level function ``run(spec, options) -> row`` on one axis (``spec`` with its
-``seed`` set) returning a flat dict of scalars, and a ``summarize(rows) -> figures`` that
-turns the whole table into the figures a README quotes. Tasks judge the axis only from what a
-user can measure on it (the FMU's outputs and its data sheet); ``truth_*`` columns are copied
-for the summary's scoring and never read by the procedure under test.
-"""
+"""``limit-cycle``: section X scaled to each axis; a sustained limit cycle in the eq. 13 band
+under ordinary control, and the default regulator's cut of it."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
-from plant_sim.fmu import FmuSpec, nominal_axis
+from plant_sim.fmu import FmuSpec
 from plant_sim.fmu.arguments import AxisSource
 from plant_sim.paper.scenarios import SectionX
 from regulator import RegulatorConfig
 
-Row = dict[str, Any]
-
-
-@dataclass(frozen=True)
-class Task:
-    name: str
-    help: str
-    run: Callable[[FmuSpec, Mapping[str, str]], Row]
-    summarize: Callable[[Sequence[Row]], dict[str, Any]]
-    options: tuple[str, ...] = ()
-
-
-def truth(source: AxisSource, *names: str) -> Row:
-    """The FMU's scoring values ``truth_NAME`` (for the summary; README: scoring only)."""
-    assert source.model is not None
-    out: Row = {}
-    for name in names:
-        value = source.model.nominal.get(f"truth_{name}")
-        if value is not None:
-            out[f"truth_{name}"] = value
-    return out
-
-
-def fmu_source(spec: FmuSpec) -> AxisSource:
-    model = spec.load()
-    return AxisSource(nominal_axis(model), spec.describe(), spec, model)
-
+from .base import Row, Task, fmu_source, truth
 
 # --- limit-cycle ---------------------------------------------------------------------------------
 #: The section X disturbance as a share of the data sheet's torque limit: the paper's 20 N·m
@@ -68,7 +36,7 @@ def run_limit_cycle(spec: FmuSpec, options: Mapping[str, str]) -> Row:
     a bus: is there a sustained limit cycle under ordinary control (at the paper's feed or the
     first lower feed of the demo, :data:`hil.demo.FMU_FEEDS`), in the eq. 13 band, and how
     much does the regulator with its default β_T cut it."""
-    from ..demo import FMU_FEEDS, late_verdict, offline_run
+    from hil.demo import FMU_FEEDS, late_verdict, offline_run
 
     source = fmu_source(spec)
     axis = source.axis
@@ -110,15 +78,10 @@ def summarize_limit_cycle(rows: Sequence[Row]) -> dict[str, Any]:
     }
 
 
-TASKS: dict[str, Task] = {
-    t.name: t
-    for t in (
-        Task(
-            "limit-cycle",
-            "section X on each axis: a sustained limit cycle in the eq. 13 band under ordinary "
-            "control, and the default regulator's cut of it",
-            run_limit_cycle,
-            summarize_limit_cycle,
-        ),
-    )
-}
+TASK = Task(
+    "limit-cycle",
+    "section X on each axis: a sustained limit cycle in the eq. 13 band under ordinary "
+    "control, and the default regulator's cut of it",
+    run_limit_cycle,
+    summarize_limit_cycle,
+)
