@@ -74,6 +74,7 @@ ol.findings li { border-left: 6px solid #888; background: #f7f8fa; margin: 10px 
 ol.findings li.left-out { border-color: #c0392b; }
 ol.findings li.data-sheet { border-color: #d35400; }
 ol.findings li.unexplained { border-color: #7d3c98; }
+ol.findings li.no-model-gain { border-color: #b7950b; }
 ol.findings li.explained { border-color: #1e8449; }
 .what { font-size: 19px; font-weight: 600; margin: 0; }
 .why { margin: 4px 0 0; color: #4a5566; font-size: 14px; }

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .adequacy import inadequate
+from .closed_loop import GateStep
 from .effects import MODELS, Effect
 from .outcome import DatasheetVerdict, Diagnosis
 from .parameters import key_unit, units
@@ -32,7 +33,7 @@ from .unexplained import Range, Where
 class Finding:
     """One line of the headline and the evidence behind it."""
 
-    kind: str  # "left out", "data sheet", "unexplained", "explained"
+    kind: str  # "left out", "data sheet", "no model gain", "unexplained", "explained"
     text: str
     evidence: str = ""
 
@@ -160,6 +161,22 @@ def datasheet_finding(d: Diagnosis, x: DatasheetVerdict) -> Finding:
     return Finding("data sheet", sentence(text), evidence)
 
 
+def no_gain_finding(d: Diagnosis, g: GateStep) -> Finding:
+    """An effect the evidence named that the held-out gate dropped."""
+    v = next((v for v in d.evidence.verdicts if v.effect is g.effect and v.named), None)
+    shown = f" (z = {number(v.z)})" if v is not None else ""
+    return Finding(
+        "no model gain",
+        sentence(
+            f"{effect_name(g.effect)} shows in the measured signals{shown}, but its model "
+            "does not predict the held-out data better: not named"
+        ),
+        f"held-out cost {number(g.cost_without)} without it, {number(g.cost_with)} with it "
+        f"({percent(100.0 * g.gain)} lower, {p_text(g.p)}; at least "
+        f"{percent(100.0 * d.options.min_improvement)} needed; {d.validation})",
+    )
+
+
 def range_text(r: Range, unit: str) -> str:
     return f"{quantities([r.low, r.high], unit)} ({number(r.rms_over_noise, 2)}× the noise)"
 
@@ -228,12 +245,14 @@ def unexplained_finding(d: Diagnosis) -> Finding:
 
 def findings(d: Diagnosis) -> list[Finding]:
     """The headline: effects left out (naming order), data-sheet values the evidence
-    contradicts, then what stays unexplained — or that the model explains the recording."""
+    contradicts, effects the evidence showed that the held-out gate dropped, then what stays
+    unexplained — or that the model explains the recording."""
     out = [left_out_finding(d, e) for e in d.left_out]
     out += [datasheet_finding(d, x) for x in d.datasheet if x.datasheet_wrong]
+    out += [no_gain_finding(d, g) for g in d.closed_loop.gate if not g.kept]
     if not d.adequacy.adequate:
         out.append(unexplained_finding(d))
-    elif not out:
+    elif not any(f.kind in ("left out", "data sheet") for f in out):
         ratios = ", ".join(
             f"{signal_label(d, s)[0]} {number(r, 2)}×" for s, r in d.adequacy.noise_ratio.items()
         )

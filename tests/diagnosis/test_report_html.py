@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from diagnosis.__main__ import main
+from diagnosis.closed_loop import GateStep
 from diagnosis.commands import diagnose as diagnose_command
 from diagnosis.effects import MODELS, Effect, experiment_for
 from diagnosis.outcome import Diagnosis
@@ -292,6 +293,20 @@ def test_an_ambiguity_gives_the_next_experiment(run: Run) -> None:
     assert "Constant load torque or coulomb friction?" in html
     assert experiment_for(a, b)[1:] in html
     assert any(x.startswith("next experiment: Constant load torque or") for x in text_summary(d))
+
+
+def test_evidence_the_held_out_gate_dropped_is_said(run: Run) -> None:
+    gate = [GateStep(Effect.COMPLIANCE, 2.74, 2.738, 0.0007, 0.3, 0.38, False)]
+    d = dataclasses.replace(
+        run.diagnosis, closed_loop=dataclasses.replace(run.diagnosis.closed_loop, gate=gate)
+    )
+    said = [f for f in findings(d) if f.kind == "no model gain"]
+    assert [f.text for f in said] == [
+        "Compliance shows in the measured signals, but its model does not predict the "
+        "held-out data better: not named"
+    ]
+    assert "held-out cost 2.74 without it, 2.74 with it (0.1 % lower, p = 0.38" in said[0].evidence
+    assert said[0].text in page(d)
 
 
 def test_fields_the_page_does_not_know_are_shown(run: Run) -> None:
