@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
             options,
             sources=(str(args.recording), *(str(v) for v in args.validate or ())),
         )
-    progress = Progress(f"plant_sim {NAME}", quiet=args.quiet or args.no_progress)
+    progress = Progress(f"diagnosis {NAME}", quiet=args.quiet or args.no_progress)
     with progress.bar(None, "diagnose", unit="sim") as bar, warnings.catch_warnings():
         warnings.simplefilter("ignore", TraceWarning)  # already printed above
         warnings.simplefilter("ignore", RuntimeWarning)  # unstable trial parameter sets
