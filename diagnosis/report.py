@@ -1,6 +1,7 @@
-"""Write a :class:`~diagnosis.engine.Diagnosis`: report.json, axis_fitted.toml,
-fit_before.csv / fit_after.csv (simulated traces with the recording's columns and time base)
-and report.png (recording vs before vs after per signal, mismatch windows shaded, residuals).
+"""Write a :class:`~diagnosis.engine.Diagnosis`: report.html (the page an engineer reads,
+:mod:`.report_html`), report.json, axis_fitted.toml, fit_before.csv / fit_after.csv
+(simulated traces with the recording's columns and time base) and report.png (recording vs
+before vs after per signal, mismatch windows shaded, residuals; :mod:`.report_figures`).
 """
 
 from __future__ import annotations
@@ -19,10 +20,19 @@ from virtual_bus.formats.trace import Trace
 from .closed_loop import ModelFit
 from .fit import plain_floats
 from .outcome import Diagnosis
-from .parameters import key_unit, units
+from .parameters import key_unit
+from .report_figures import plot_report
+from .report_html import write_html
 from .results import DECISION_RULE
 
-REPORT_FILES = ("report.json", "axis_fitted.toml", "fit_before.csv", "fit_after.csv", "report.png")
+REPORT_FILES = (
+    "report.html",
+    "report.json",
+    "axis_fitted.toml",
+    "fit_before.csv",
+    "fit_after.csv",
+    "report.png",
+)
 
 
 def _jsonable(value: Any) -> Any:
@@ -190,114 +200,20 @@ def axis_text(d: Diagnosis, source: str = "") -> str:
     return dump_axis(plain_floats(d.fitted), header="\n".join(header))
 
 
-def _compared(d: Diagnosis, signal: str, values: np.ndarray) -> np.ndarray:
-    ref = d.recording["position_reference"]
-    if signal == "motor_position":
-        return d.nominal.transmission_ratio * ref - values
-    if signal == "load_position":
-        return ref - values
-    return values
-
-
-def _label(d: Diagnosis, signal: str) -> tuple[str, str]:
-    """(quantity, unit) of what ``signal`` is scored on, in the axis's units."""
-    u = units(d.nominal)
-    motor_pos = "m" if d.nominal.transmission_ratio == 1.0 and u["position"] == "m" else "rad"
-    return {
-        "motor_position": ("motor following error", motor_pos),
-        "load_position": ("load following error", u["position"]),
-        "motor_speed": ("motor speed", f"{motor_pos}/s"),
-        "motor_torque": ("motor torque" if u["torque"] == "N·m" else "motor force", u["torque"]),
-    }[signal]
-
-
-def plot_report(d: Diagnosis, path: str | Path) -> None:
-    """Per signal: recording, nominal and fitted simulation (upper panel) and the residuals
-    of the nominal, the re-fitted nominal and the fitted model (lower panel); every axis
-    with its unit, mismatch windows shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Patch
-
-    signals = list(d.fit_before)
-    t = d.recording.time
-    fig, axes = plt.subplots(
-        2 * len(signals), 1, figsize=(13, 2.8 * 2 * len(signals)), sharex=True, squeeze=False
-    )
-    axes = axes[:, 0]
-    for i, s in enumerate(signals):
-        name, unit = _label(d, s)
-        rec = _compared(d, s, d.recording[s])
-        before = _compared(d, s, d.simulated_before[s])
-        after = _compared(d, s, d.simulated_after[s])
-        refit = _compared(d, s, d.simulated_refit[s])
-        ax, axr = axes[2 * i], axes[2 * i + 1]
-        ax.plot(t, rec, lw=0.6, color="0.35", label="recording")
-        ax.plot(
-            t,
-            before,
-            lw=0.8,
-            color="tab:red",
-            label=f"nominal, fit {d.fit_before[s].fit_percent:.1f} %",
-        )
-        ax.plot(
-            t,
-            after,
-            lw=0.8,
-            color="tab:blue",
-            label=f"fitted, fit {d.fit_after[s].fit_percent:.1f} %",
-        )
-        ax.set_ylabel(f"{name}\n({unit})", fontsize=9)
-        axr.plot(t, rec - before, lw=0.4, color="tab:red", alpha=0.5, label="recording − nominal")
-        axr.plot(
-            t,
-            rec - refit,
-            lw=0.5,
-            color="tab:orange",
-            label="recording − nominal within data sheet",
-        )
-        axr.plot(t, rec - after, lw=0.5, color="tab:blue", label="recording − fitted")
-        axr.axhline(0.0, color="k", lw=0.5)
-        axr.set_ylabel(f"residual\n({unit})", fontsize=9)
-        shaded = False
-        for m in d.mismatch:
-            if m.signal == s:
-                shaded = True
-                for a in (ax, axr):
-                    a.axvspan(m.t_start, m.t_end, color="orange", alpha=0.25, lw=0)
-        extra = [Patch(color="orange", alpha=0.25, label="mismatch window")] if shaded else []
-        for a in (ax, axr):
-            handles, _ = a.get_legend_handles_labels()
-            a.legend(
-                handles=handles + extra,
-                loc="upper left",
-                bbox_to_anchor=(1.005, 1.0),
-                fontsize=8,
-                frameon=False,
-            )
-            a.tick_params(labelsize=8)
-            a.grid(True, lw=0.3, alpha=0.5)
-    axes[-1].set_xlabel("time (s)", fontsize=9)
-    named = ", ".join(e.value for e in d.left_out) or "nothing"
-    verdict = "" if d.adequacy.adequate else " — the model class does not explain the recording"
-    fig.suptitle(f"Diagnosis: left out {named}{verdict}", fontsize=11)
-    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.985))
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def write_report(d: Diagnosis, out_dir: str | Path, source: str = "") -> list[Path]:
-    """Write the five report files into ``out_dir`` (created if needed); returns their paths."""
+def write_report(
+    d: Diagnosis, out_dir: str | Path, source: str = "", axis_source: str = ""
+) -> list[Path]:
+    """Write the report files into ``out_dir`` (created if needed); returns their paths.
+    ``source``, ``axis_source``: the recording's and the nominal axis file's names."""
     import json
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = [out / name for name in REPORT_FILES]
-    paths[0].write_text(json.dumps(report_dict(d), indent=2) + "\n", encoding="utf-8")
-    paths[1].write_text(axis_text(d, source), encoding="utf-8")
-    simulated_like(d.recording, d.simulated_before).to_csv(paths[2])
-    simulated_like(d.recording, d.simulated_after).to_csv(paths[3])
-    plot_report(d, paths[4])
-    return paths
+    paths = dict(zip(REPORT_FILES, (out / name for name in REPORT_FILES), strict=True))
+    paths["report.json"].write_text(json.dumps(report_dict(d), indent=2) + "\n", encoding="utf-8")
+    paths["axis_fitted.toml"].write_text(axis_text(d, source), encoding="utf-8")
+    simulated_like(d.recording, d.simulated_before).to_csv(paths["fit_before.csv"])
+    simulated_like(d.recording, d.simulated_after).to_csv(paths["fit_after.csv"])
+    plot_report(d, paths["report.png"])
+    write_html(d, paths["report.html"], source, axis_source)
+    return list(paths.values())

@@ -2,7 +2,9 @@
 
 Says where and when a recording of a real axis and its nominal model differ, which physics
 of the axis-file table the model leaves out, adds and fits it, and shows the fit improving on
-held-out data. Writes DIR/report.json, DIR/axis_fitted.toml, DIR/fit_before.csv,
+held-out data. Prints a summary (what is wrong, the evidence, the fit before and after, what
+stays unexplained and where, the next experiment) and writes DIR/report.html (the same as a
+page, with figures), DIR/report.json, DIR/axis_fitted.toml, DIR/fit_before.csv,
 DIR/fit_after.csv and DIR/report.png (see docs/diagnosis.md).
 """
 
@@ -21,11 +23,12 @@ from virtual_bus.formats.trace import read_trace
 from ..effects import Effect
 from ..engine import DiagnosisOptions, diagnose, prepare
 from ..report import REPORT_FILES, write_report
+from ..summary import text_summary
 
 NAME = "diagnose"
 HELP = (
     "find which physics an axis file leaves out of a recording, fit it, and report "
-    "(report.json, axis_fitted.toml, fit_before/after.csv, report.png)"
+    "(report.html, report.json, axis_fitted.toml, fit_before/after.csv, report.png)"
 )
 
 
@@ -105,37 +108,14 @@ def run(args: argparse.Namespace) -> int:
             options,
             sources=(str(args.recording), *(str(v) for v in args.validate or ())),
         )
-    progress = Progress(f"plant_sim {NAME}", quiet=args.quiet or args.no_progress)
+    progress = Progress(f"diagnosis {NAME}", quiet=args.quiet or args.no_progress)
     with progress.bar(None, "diagnose", unit="sim") as bar, warnings.catch_warnings():
         warnings.simplefilter("ignore", TraceWarning)  # already printed above
         warnings.simplefilter("ignore", RuntimeWarning)  # unstable trial parameter sets
         diagnosis = diagnose(recording, axis, validation or None, options, bar, prepared)
-    write_report(diagnosis, out, source=str(args.recording))
-    left = ", ".join(e.value for e in diagnosis.left_out) or "nothing"
-    fits = ", ".join(
-        f"{s} {diagnosis.fit_before[s].fit_percent:.1f} -> {f.fit_percent:.1f} %"
-        for s, f in diagnosis.fit_after.items()
-    )
-    print(f"left out: {left}")
-    if not diagnosis.adequacy.adequate:
-        print(
-            "unexplained, here: the model class does not explain this recording "
-            "(report.json: adequacy, unexplained)"
-        )
-    for x in diagnosis.datasheet:
-        if x.datasheet_wrong:
-            print(
-                f"data sheet wrong: {x.key} {x.nominal:.6g} {x.unit}, evidence "
-                f"{x.evidence:.6g} ± {x.standard_error:.2g}"
-            )
-    print(f"simulation fit (nominal -> fitted): {fits}")
-    for a in diagnosis.ambiguous:
-        print(f"ambiguous: {a.named.value} or {a.alternative.value}; to tell: {a.experiment}")
-    t = diagnosis.timings_s
-    print(
-        f"took {t['total']:.1f} s (evidence {t['evidence']:.1f} s), "
-        f"{diagnosis.n_simulations} simulations"
-    )
+    write_report(diagnosis, out, source=str(args.recording), axis_source=str(args.axis))
     written = [name for name in REPORT_FILES if (out / name).exists()]
-    print(f"wrote {out}/: " + ", ".join(written))
+    files = [f"{out}/: " + ", ".join(written)]
+    for line in text_summary(diagnosis, str(args.recording), files):
+        print(line)
     return 0

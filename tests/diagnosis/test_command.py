@@ -50,6 +50,7 @@ def report_dir(
 def test_report_files(report_dir: Path, case_files: tuple[Path, Path, Path]) -> None:
     csv, _, _ = case_files
     for name in (
+        "report.html",
         "report.json",
         "axis_fitted.toml",
         "fit_before.csv",
