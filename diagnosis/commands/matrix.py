@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise cli.UsageError(f"--cases: unknown {unknown}; known: {sorted(known)}")
         cases = [c for c in cases if c.name in args.cases]
-    progress = Progress(f"plant_sim {NAME}", quiet=args.quiet)
+    progress = Progress(f"diagnosis {NAME}", quiet=args.quiet)
     sink = open(args.json, "w", encoding="utf-8") if args.json else None  # noqa: SIM115
 
     with progress.bar(len(cases), "diagnoses", unit="case") as bar:
