@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 from virtual_bus import cli
+from virtual_bus.atomic import write_atomic
 from virtual_bus.progress import Progress
 
 from ..errors import FleetMapError, PlantSimError, SchedulerError
@@ -157,6 +158,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     for r in result.results:
+        if r.warning:
+            print(f"monitor: warning: {r.warning}", file=sys.stderr)
         if not r.ok:
             print(f"monitor: skipped {r.error}", file=sys.stderr)
     rate = len(result.results) / result.elapsed_s * 60 if result.elapsed_s > 0 else 0.0
@@ -169,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {i:2d}. {t.axis_id}: {'; '.join(t.reasons)}")
     if truth_file is not None:
         matrix = confusion(result.ranked, truth_file)
-        (args.out / "confusion.json").write_text(json.dumps(matrix, indent=1))
+        write_atomic(args.out / "confusion.json", json.dumps(matrix, indent=1))
         print("demo fleet, axes by truth (rows) and monitor verdict (columns):")
         print(confusion_markdown(matrix))
     print("wrote " + ", ".join(str(f) for f in result.files))
