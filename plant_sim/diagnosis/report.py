@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from virtual_bus.atomic import replacing, write_atomic
 from virtual_bus.formats.axis import dump_axis
 from virtual_bus.formats.trace import Trace
 
@@ -284,7 +285,8 @@ def plot_report(d: Diagnosis, path: str | Path) -> None:
     verdict = "" if d.adequacy.adequate else " — the model class does not explain the recording"
     fig.suptitle(f"Diagnosis: left out {named}{verdict}", fontsize=11)
     fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.985))
-    fig.savefig(path, dpi=90)
+    with replacing(Path(path)) as tmp:
+        fig.savefig(tmp, dpi=90, format=Path(path).suffix[1:])
     plt.close(fig)
 
 
@@ -295,8 +297,8 @@ def write_report(d: Diagnosis, out_dir: str | Path, source: str = "") -> list[Pa
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / name for name in REPORT_FILES]
-    paths[0].write_text(json.dumps(report_dict(d), indent=2) + "\n", encoding="utf-8")
-    paths[1].write_text(axis_text(d, source), encoding="utf-8")
+    write_atomic(paths[0], json.dumps(report_dict(d), indent=2) + "\n")
+    write_atomic(paths[1], axis_text(d, source))
     simulated_like(d.recording, d.simulated_before).to_csv(paths[2])
     simulated_like(d.recording, d.simulated_after).to_csv(paths[3])
     plot_report(d, paths[4])
