@@ -61,7 +61,8 @@ class TraceRecorder:
     path: CSV file or None (memory only). keep: keep every row in memory for :meth:`trace`.
     disturbance: known disturbance per cycle (N·m at the motor, the spec's ``disturbance``
     column; rows beyond its end get 0), or None when the bridge cannot know it.
-    flush_rows: rows per block; a block reaches the file in one write (TraceWriter).
+    flush_rows: rows per block, appended to the file as one block (TraceWriter); the bus log
+    (:class:`BusLog`) writes blocks of as many SYNC cycles.
     """
 
     def __init__(
@@ -121,7 +122,7 @@ class TraceRecorder:
             self.flush()
 
     def flush(self) -> None:
-        """Write the rows recorded since the last flush to the file (one write)."""
+        """Append the rows recorded since the last flush to the file (one block)."""
         if self._keep and self._in_block:
             self._rows.append(self._block[: self._in_block].copy())
         self._in_block = 0

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from bridge.__main__ import main as bridge_main
 from hil.__main__ import main as hil_main
+from plant_sim.drive.config import DriveConfig, TimeMode
 from plant_sim.drive.process import DriveProcessConfig, serve
 from tests.paths import ROOT
 from virtual_bus import BusConfig, Interface, open_bus
@@ -18,6 +19,7 @@ from virtual_bus.formats.axis import load_axis
 AXIS_FILE = ROOT / "config" / "paper_axis.toml"
 #: Backstop of the wait for the drive's boot-up (it compiles first on an empty numba cache).
 BOOT_BACKSTOP_S = 900.0
+LOCKSTEP = DriveConfig(time_mode=TimeMode.LOCKSTEP)
 
 
 def demo(out: str) -> int:
@@ -28,13 +30,14 @@ def demo(out: str) -> int:
 def bridge_run(out: str) -> int:
     """``python -m bridge run`` in lockstep with a move and its trace and bus log, against
     the simulated drive served on the same python-can virtual bus (as
-    tests/hil/test_two_processes.py does in one process)."""
+    tests/hil/test_two_processes.py does), its heartbeat on SYNC time as the lockstep bridge
+    supervises it (``plant_sim drive --clock lockstep``)."""
     channel = f"kill-{uuid.uuid4().hex[:10]}"
     bus = open_bus(BusConfig(interface=Interface.VIRTUAL, channel=channel))
     stop, booted = threading.Event(), threading.Event()
     thread = threading.Thread(
         target=serve,
-        args=(DriveProcessConfig(load_axis(AXIS_FILE)), bus, stop),
+        args=(DriveProcessConfig(load_axis(AXIS_FILE), drive=LOCKSTEP), bus, stop),
         kwargs={"ready": lambda _: booted.set()},
         name="drive",
     )
