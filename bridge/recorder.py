@@ -22,6 +22,7 @@
 
 from __future__ import annotations
 
+import logging
 import re
 import threading
 import time
@@ -38,6 +39,8 @@ from virtual_bus.formats.records import RecordFile
 from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace, TraceWriter
 
 from .cycle import CycleController
+
+log = logging.getLogger("bridge")
 
 BASE_COLUMNS = (
     *RECORDED_COLUMNS,
@@ -195,7 +198,9 @@ class BusLog:
     before every ``flush_syncs``-th SYNC frame (the first SYNC's too: the start-up's frames),
     on :meth:`flush` and :meth:`close`, and when :data:`MAX_PENDING_FRAMES` wait. With the
     trace recorder's blocks of as many rows, a log and a trace a kill leaves agree
-    (docs/bridge.md, "Recording"). Thread-safe (start-up runs a receive thread).
+    (docs/bridge.md, "Recording"). A block that cannot be written (a full disk) is undone,
+    logged as an error, and the log stops there (``failed``): logging a frame never raises
+    into the loop that sends it. Thread-safe (start-up runs a receive thread).
     """
 
     def __init__(
@@ -222,12 +227,16 @@ class BusLog:
         self._flush_syncs = max(1, flush_syncs)
         self.frames = 0
         self.syncs = 0
+        #: why the log stopped (a block that could not be written), None while it runs
+        self.failed: OSError | None = None
 
     def log(self, msg: can.Message, received: bool) -> None:
         msg.is_rx = received
         msg.timestamp = timestamp = self._now()
         msg.channel = self.channel
         with self._lock:
+            if self.failed is not None:
+                return
             lines = self._lines
             if msg.arbitration_id == SYNC_COB_ID and not msg.is_extended_id:
                 if self.syncs % self._flush_syncs == 0:
@@ -267,8 +276,12 @@ class BusLog:
                 self._write_pending()
 
     def _write_pending(self) -> None:
-        if self._lines:
-            self._file.write_lines(self._lines)
+        if self._lines and self.failed is None:
+            try:
+                self._file.write_lines(self._lines)
+            except OSError as exc:  # the file ends at the block before (RecordFile)
+                self.failed = exc
+                log.error("bus log %s failed, logging stops: %s", self._file.path, exc)
             self._lines.clear()
 
     def flush(self) -> None:

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import copy
 import itertools
+import os
 import re
 import shutil
 import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +21,7 @@ from bridge.cycle import BridgeState
 from bridge.interpolator import Move
 from bridge.recorder import BASE_COLUMNS, EXTRA_COLUMNS, BusLog, TraceRecorder
 from tests.bridge_helpers import AXIS, PayloadDrive, controller  # tests/ helper module
+from tests.paths import ROOT
 from virtual_bus.formats.records import PAGE_BYTES
 from virtual_bus.formats.trace import read_trace
 
@@ -255,3 +258,38 @@ def test_every_page_cut_of_a_bus_log_reads_with_python_can_and_log2asc(tmp_path:
         path.unlink()
     if log2asc is None:
         pytest.skip("can-utils' log2asc is not installed (apt-get install can-utils)")
+
+
+FULL_DISK = """
+import os, resource, signal, sys
+import can
+from bridge.recorder import BusLog
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of a signal, as a full disk
+resource.setrlimit(resource.RLIMIT_FSIZE, (30000, resource.RLIM_INFINITY))
+log = BusLog(sys.argv[1], channel="vcan0")
+for k in range(2000):  # ~90 kB: the disk is full after ~30 kB
+    log.log(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False), False)
+    log.log(can.Message(arbitration_id=0x182, data=bytes(8), is_extended_id=False), True)
+log.close()
+print(log.failed.errno if log.failed else "none")
+"""
+
+
+def test_a_bus_log_on_a_full_disk_stops_at_its_last_whole_block(tmp_path: Path) -> None:
+    """RLIMIT_FSIZE as a full disk: logging never raises into the loop; the file keeps the
+    blocks written before, whole (python-can reads it), and the log says why it stopped."""
+    path = tmp_path / "bus.log"
+    done = subprocess.run(
+        [sys.executable, "-c", FULL_DISK, str(path)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=120,
+        check=True,
+    )
+    assert done.stdout.split() == ["27"]  # EFBIG
+    assert "bus log" in done.stderr and "logging stops" in done.stderr
+    data = path.read_bytes()
+    assert 0 < len(data) <= 30000 and data.endswith(b"\n")
+    frames = list(can.LogReader(str(path)))
+    assert sum(f.arbitration_id == 0x080 for f in frames) % 100 == 0  # whole blocks
