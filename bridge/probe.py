@@ -29,6 +29,7 @@ from canopen.objectdictionary import ODVariable
 
 from cmdline import cli
 from virtual_bus import BusConfig, open_bus
+from virtual_bus.atomic import write_atomic
 from virtual_bus.contract import TPDO_MAPPING_BASE, NmtCommand, pdo_comm_index, pdo_mapping_index
 from virtual_bus.formats.axis import AxisKind
 
@@ -439,6 +440,6 @@ def report(
         )
         if chosen is not None:
             comments += (f"load source: the best candidate the probe saw, {chosen.describe()}",)
-        out.write_text(render_profile(profile, comments), encoding="utf-8")
+        write_atomic(out, render_profile(profile, comments))
         print(f"wrote {out}")
     return 0

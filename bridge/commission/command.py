@@ -38,6 +38,7 @@ from canopen.objectdictionary import datatypes as dt
 
 from cmdline import cli
 from virtual_bus import BusConfig, open_bus
+from virtual_bus.atomic import write_atomic
 from virtual_bus.contract import SdoAbort
 from virtual_bus.shipped import DRIVE_EDS
 
@@ -288,7 +289,7 @@ def _dump(args: argparse.Namespace) -> int:
             values=values,
             commissioning=commissioning,
         )
-    out.write_text(text, encoding="utf-8")
+    write_atomic(out, text)
     print(f"wrote {out}: {count} objects of node {args.node_id} (EDS {eds_path.name})")
     for exc in no_data:
         print(f"no value (EDS default kept): {exc}", file=sys.stderr)
