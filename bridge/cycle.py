@@ -251,6 +251,9 @@ class CycleController:
         self.set_scaling(scaling)
         self.now_s = 0.0
         self.controlword = CW_DISABLED
+        #: what DISABLED commands: switch on, no motion (0007h), or the quick stop (0002h)
+        #: after :meth:`halt` -- the drive's own ramp to standstill, never a coasting axis
+        self.disabled_controlword = CW_DISABLED
         # supervision
         self.cycles = 0
         self.drive_error_code = 0
@@ -413,6 +416,7 @@ class CycleController:
         """Enable, disable or reset; ParameterError 0800 0022 if not possible now."""
         state = self.state
         if command is Command.ENABLE and state is BridgeState.DISABLED:
+            self.disabled_controlword = CW_DISABLED
             self._set_enabling()
         elif command is Command.DISABLE and state in (BridgeState.ENABLING, BridgeState.RUNNING):
             self.state = BridgeState.DISABLED
@@ -435,6 +439,21 @@ class CycleController:
                 value=int(command),
                 abort_code=SdoAbort.DEVICE_STATE,
             )
+
+    def halt(self) -> None:
+        """The end of a run while the axis may move (a signal, ``--seconds`` in a move):
+        DISABLED with the quick stop (0002h, set point 0), so that the drive ramps the motor
+        to standstill (6085h, 605Ah) instead of switching the power stage off and letting it
+        coast. A stop in force keeps its reason (it already commands the quick stop)."""
+        if self.axis_enabled:
+            self.state = BridgeState.DISABLED
+            self._clear_motion()
+        self.disabled_controlword = CW_STOPPED
+
+    @property
+    def status_received(self) -> bool:
+        """The drive's statusword came in the last cycle."""
+        return self._status_in
 
     def stop(self, reason: StopReason, message: str) -> None:
         """Stop the axis from outside the controller (the loop: overruns, its own errors);
@@ -574,7 +593,7 @@ class CycleController:
         elif state is _STOPPED:
             self._output(CW_STOPPED, 0.0)
         else:
-            self._output(CW_DISABLED, 0.0)
+            self._output(self.disabled_controlword, 0.0)
         return self._rpdo
 
     def _supervise(self) -> bool:

@@ -8,13 +8,16 @@ thread that bypasses the bridge's bus log, and lets the SDO server answer in Sto
 replaces it:
 
 - the state starts Operational (the bridge starts its network as NMT master and produces
-  SYNC from the start); start / stop / enter pre-operational switch it; reset node and reset
-  communication send the boot-up message and enter Pre-operational (CiA 301 figure 48; the
-  bridge does not restart its application, its parameters stay);
+  SYNC from the start); :meth:`BridgeNmt.boot` announces it with the boot-up message when
+  the bridge starts (so a drive that watched a bridge before sees it restarted, and a
+  watching node -- CANopenNode, Lely -- sees it come); start / stop / enter pre-operational
+  switch it; reset node and reset communication send the boot-up message and enter
+  Pre-operational (CiA 301 figure 48; the bridge does not restart its application, its
+  parameters stay);
 - the heartbeat (0x700 + node-ID, one byte: the state) is sent by :meth:`BridgeNmt.tick` from
   the bridge's own thread through the bridge's port (so the bus log has it), every 1017h ms
   of the clock ``tick`` is given (the loop's pacer; the service thread's wall clock between
-  runs); 1017h = 0 (the default) sends none;
+  runs); default 100 ms, 1017h = 0 sends none;
 - ``on_state(new)`` lets the node react: the loop stops the axis when the bridge leaves
   Operational while the axis is enabled (docs/peers.md).
 """
@@ -78,6 +81,12 @@ class BridgeNmt:
         if command is not None:
             self.execute(command)
 
+    def boot(self) -> None:
+        """The boot-up message (0x700 + node-ID, 00h) of a bridge that starts; the heartbeat
+        period starts anew with the next tick."""
+        self._send(self._can_id, bytes([NmtState.INITIALISING]))
+        self._due_s = None
+
     def execute(self, command: NmtCommand) -> None:
         if command in (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION):
             self._set(NmtState.INITIALISING)
@@ -104,6 +113,11 @@ class BridgeNmt:
     def _on_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
         if index == HEARTBEAT_PRODUCER:
             self.set_period_ms(struct.unpack("<H", bytes(data))[0])
+
+    @property
+    def period_ms(self) -> int:
+        """The heartbeat period in force (1017h, ms; 0: none)."""
+        return round(self._period_s * 1000.0)
 
     def set_period_ms(self, period_ms: int) -> None:
         self._period_s = period_ms / 1000.0
