@@ -63,6 +63,7 @@ class BridgeNmt:
         self._can_id = HEARTBEAT_BASE + node.id
         self._period_s = 0.0
         self._due_s: float | None = None
+        self._wall_due_s: float | None = None
         self.heartbeats_sent = 0
         # LocalNode's NmtSlave handles 1017h writes with a python-can periodic task; the
         # bridge sends its heartbeat itself, so that handler goes with the NmtSlave
@@ -123,9 +124,13 @@ class BridgeNmt:
         self._period_s = period_ms / 1000.0
         self._due_s = None
 
-    def tick(self, now_s: float) -> None:
+    def tick(self, now_s: float, wall_s: float | None = None) -> None:
         """Send the heartbeat if one is due at ``now_s`` (seconds of any clock; called at
-        least every period, the loop's cycle or the service thread's few ms)."""
+        least every period, the loop's cycle or the service thread's few ms). ``wall_s``: a
+        second clock (lockstep: the wall clock beside the simulated time): the heartbeat
+        also goes out when a period of it has passed, so that a drive watching on either
+        clock -- a lockstep drive on SYNC time, a real-time one on its own -- sees it in
+        time however fast the loop runs."""
         period = self._period_s
         if period <= 0.0:
             return
@@ -134,9 +139,13 @@ class BridgeNmt:
             # the first tick, or another clock (the loop's pacer after the service thread's
             # wall clock, or back): the period starts now
             self._due_s = now_s + period
+            self._wall_due_s = None if wall_s is None else wall_s + period
             return
-        if now_s < due:
+        wall_due = self._wall_due_s
+        wall_late = wall_s is not None and wall_due is not None and wall_s >= wall_due
+        if now_s < due and not wall_late:
             return
-        self._due_s = due + period
+        self._due_s = due + period if now_s >= due else now_s + period
+        self._wall_due_s = None if wall_s is None else wall_s + period
         self._send(self._can_id, bytes([self.state]))
         self.heartbeats_sent += 1

@@ -734,9 +734,13 @@ class Bridge:
                 0.0 if due is None else sync_wall - due, now - sync_wall, now - inputs_wall, work
             )
         self._record_pending = self.recorder is not None
-        # the heartbeat (1017h): on the simulated time in lockstep (a lockstep drive watches
-        # it on SYNC time), on the wall clock in real time, as between runs (no gap)
-        self.nmt.tick(now_s if self._lockstep else wall())
+        # the heartbeat (1017h): on the wall clock in real time, as between runs (no gap);
+        # in lockstep on the simulated time and the wall clock, whichever is due first (a
+        # drive watches on SYNC time or on its own clock, bridge.nmt)
+        if self._lockstep:
+            self.nmt.tick(now_s, wall())
+        else:
+            self.nmt.tick(wall())
         self._k = k + 1
 
     def run(self, cycles: int | None = None, until: Callable[[Bridge], bool] | None = None) -> int:

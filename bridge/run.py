@@ -32,6 +32,7 @@ from regulator import RegulatorConfig
 from virtual_bus import BusConfig, Interface, bus_load, open_bus
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.frame_guard import FrameFault
+from virtual_bus.own_frames import EchoSortingBus
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 from .busload import layout_load
@@ -44,7 +45,7 @@ from .master import DriveMaster
 from .node import DEFAULT_OVERRUN_LIMIT, Bridge, BridgeConfig
 from .objects import params_with_store
 from .params import BridgeParams
-from .recorder import BusLog, TraceRecorder, WireOrderBus, log_channel
+from .recorder import BusLog, TraceRecorder, log_channel
 from .scaling import LOAD_INCREMENTS_PER_UNIT
 from .store import ParameterStore
 from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
@@ -185,10 +186,19 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
     )
     recorder = TraceRecorder(options.trace_path, keep=False) if options.trace_path else None
     bus_log = None
+    sorting: tuple[EchoSortingBus, BusLog] | None = None
     if options.bus_log_path is not None:
         bus_log = BusLog(options.bus_log_path, channel=log_channel(options.bus))
         if options.bus.interface is Interface.SOCKETCAN:
-            bus = WireOrderBus(bus, bus_log)  # it logs; the bridge does not
+            # the kernel hands the bridge its own frames back in the wire's order; the log
+            # takes them there, the bridge never sees them (virtual_bus.own_frames)
+            writer = bus_log
+            bus = EchoSortingBus(
+                bus,
+                own=lambda m: writer.log(m, received=False),
+                other=lambda m: writer.log(m, received=True),
+            )
+            sorting = (bus, writer)
             bus_log = None
     bridge = Bridge(
         bus,
@@ -208,9 +218,9 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
         return _loop(bridge, options, bridge.controller.params)
     finally:
         bridge.close()
-        if isinstance(bus, WireOrderBus):  # it wrote the log: the bridge had none to close
-            bus.shutdown()
-            bus.log.close()
+        if sorting is not None:  # it wrote the log: the bridge had none to close
+            sorting[0].shutdown()
+            sorting[1].close()
 
 
 def _command_line_over_store(bridge: Bridge, options: RunOptions) -> None:

@@ -612,24 +612,28 @@ class SimulatedDrive:
     # ------------------------------------------------------------------------------------------
     # the drive's own clock and its master (real time)
     # ------------------------------------------------------------------------------------------
-    def free_cycle(self) -> None:
+    def free_cycle(self) -> bool:
         """One position cycle of the drive's own clock, where no SYNC came (real time; the
         serving loop calls it, ``plant_sim.drive.process``): the last set point held, the
         encoder monitor and the ramps supervised, the physics stepped -- no PDOs (they go on
-        SYNC), the set point watchdog untouched (it counts SYNCs), 2103h unchanged."""
+        SYNC), the set point watchdog untouched (it counts SYNCs), 2103h unchanged. True when
+        the axis moved (a measuring system changed)."""
         with self._lock:
             servo = self._servo
             servo.hold_measurements()
+            before = (self._table.read(O.POSITION_ACTUAL), self._table.read(O.LOAD_POSITION_ACTUAL))
             servo.supervise_without_sync()
             servo.advance()
             self.free_cycles += 1
+            after = (self._table.read(O.POSITION_ACTUAL), self._table.read(O.LOAD_POSITION_ACTUAL))
+            return after != before
 
     @property
-    def driving(self) -> bool:
-        """The power stage holds the axis, or it moves (or a disturbance acts): its physics
-        must go on between SYNCs. At rest with the power stage off nothing changes."""
+    def holding(self) -> bool:
+        """The power stage holds the axis, or a disturbance acts on it: its physics must go
+        on between SYNCs (power off and at rest, nothing changes)."""
         with self._lock:
-            return self._servo.driving
+            return self._servo.holding
 
     def watch_master(self, now_s: float) -> float | None:
         """Real time: check the master's heartbeat at the wall instant ``now_s``
@@ -650,26 +654,34 @@ class SimulatedDrive:
 
     def _check_master(self, now_us: int) -> None:
         consumer = self._consumer
+        last = consumer.last_us
         if consumer.check(now_us):
-            self._master_lost(extra=0)
+            assert last is not None
+            self._master_lost(
+                extra=0,
+                why=f"did not come: {(now_us - last) / 1000:g} ms after the last one on the "
+                f"drive's clock (consumer time {consumer.time_us / 1000:g} ms)",
+            )
 
-    def _master_lost(self, extra: int) -> None:
+    def _master_lost(self, extra: int, why: str) -> None:
         """The master's heartbeat ran out (``extra`` 0) or it booted (1): EMCY 8130h and the
         6007h reaction (lock held)."""
         option = self._table.value(O.ABORT_CONNECTION_OPTION)
         data = connection_lost_data(HEARTBEAT_CONSUMER_INDEX, self._consumer.node_id, option, extra)
         logger.warning(
-            "drive %d: the heartbeat of master %d %s",
+            "drive %d: the heartbeat of master %d %s; EMCY 8130h, 6007h = %d in %s",
             self.node_id,
             self._consumer.node_id,
-            "announced its boot-up" if extra else "did not come in time",
+            why,
+            option,
+            self._servo.state.value,
         )
         self._servo.abort_connection(EMCY_HEARTBEAT, data)
 
     def _on_master_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self._lock:
             if self._consumer.received(data[0], self._now_us()):
-                self._master_lost(extra=1)
+                self._master_lost(extra=1, why="announced its boot-up: it restarted")
             elif data[0]:
                 self._servo.connection_restored(EMCY_HEARTBEAT)
 

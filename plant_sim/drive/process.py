@@ -24,7 +24,8 @@ harness that runs the drive in a subprocess or thread of its own):
    every cycle after it until SYNC comes back -- a master that dies leaves a motor that goes
    on, as a real one does, until a supervision stops it: the heartbeat consumer (1016h,
    checked on the wall clock here, :meth:`SimulatedDrive.watch_master`) acts through 6007h.
-   At rest with the power stage off nothing changes, so no cycles run then;
+   At rest with the power stage off nothing changes (no measuring system moved in the last
+   cycle), so no cycles run then;
 5. on ``stop`` (SIGINT/SIGTERM in the command) the drive leaves the bus (heartbeat stopped);
    the bus stays the caller's to shut down.
 
@@ -44,6 +45,7 @@ from dataclasses import dataclass, field
 import can
 
 from virtual_bus.formats.axis import AxisConfig
+from virtual_bus.frame_guard import FrameFault
 from virtual_bus.framing import NOTHING
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
@@ -192,30 +194,43 @@ class OwnClock:
         self.cycle_s = cycle_s
         self.grace_s = grace_s
         self.due_s: float | None = None
+        #: the axis moved in the last cycle (the own clock runs while it does, or while the
+        #: power stage holds it)
+        self.moving = True
+        #: cycles of its own are running (no SYNC came for more than a cycle and a half, and
+        #: the axis moves or the power stage holds it)
+        self.running = False
         self._most = max(1, round(OWN_CLOCK_CATCH_UP_S / cycle_s))
 
     def synced(self, t: float) -> None:
         """A SYNC ran a cycle at ``t``: the next one is its successor's, due a cycle on."""
         self.due_s = t + self.cycle_s + self.grace_s
+        self.moving = True
+        self.running = False
 
     def wait_s(self, now: float, longest_s: float) -> float:
         """How long the loop may block before a cycle is due (at most ``longest_s``)."""
         due = self.due_s
         return longest_s if due is None else max(0.0, min(longest_s, due - now))
 
-    def due(self, now: float) -> int:
-        """Cycles due at ``now`` (0 before the first SYNC); the next is a cycle after."""
+    def due(self, now: float) -> tuple[float, int]:
+        """The instant of the first cycle due at ``now`` and how many are due (0 before the
+        first SYNC); the next is a cycle after the last of them."""
         due = self.due_s
         if due is None or now < due:
-            return 0
+            return now, 0
         n = int((now - due) // self.cycle_s) + 1
         self.due_s = due + n * self.cycle_s
-        return min(n, self._most)
+        if n > self._most:  # held off its CPU for long: the oldest cycles are lost
+            due += (n - self._most) * self.cycle_s
+            n = self._most
+        return due, n
 
     def idle(self, now: float, look_again_s: float) -> None:
         """Nothing to run now (at rest, power stage off): look again in ``look_again_s``."""
         if self.due_s is not None:
             self.due_s = now + look_again_s
+        self.running = False
 
 
 @dataclass
@@ -228,20 +243,26 @@ class LoopCounts:
 @dataclass(frozen=True)
 class ServeResult:
     """How the drive ended: SYNCs run, CiA 402 state, NMT state, active error codes,
-    datagrams the loop could not receive as a CAN frame (ignored)."""
+    datagrams the loop could not receive as a CAN frame (ignored), cycles of its own clock
+    (real time, while no SYNC came), frames its frame guard refused by kind (2105h)."""
 
     sync_count: int
     state: State402
     nmt_state: NmtState
     active_errors: tuple[int, ...]
     receive_errors: int = 0
+    free_cycles: int = 0
+    refused: tuple[tuple[FrameFault, int], ...] = ()
 
     def summary(self) -> str:
         errors = ", ".join(f"0x{code:04X}" for code in self.active_errors) or "none"
+        refused = ", ".join(f"{f.name.lower()} {n}" for f, n in self.refused if n) or "none"
         return (
             f"{self.sync_count} SYNCs served; CiA 402 {self.state.value}, NMT "
             f"{self.nmt_state.name.lower().replace('_', '-')}, active errors {errors}"
             + (f"; {self.receive_errors} datagrams ignored" if self.receive_errors else "")
+            + (f"; {self.free_cycles} cycles on its own clock" if self.free_cycles else "")
+            + f"; refused frames (2105h) {refused}"
         )
 
 
@@ -288,6 +309,8 @@ def serve(
         drive.nmt_state,
         drive.active_errors,
         counts.receive_errors,
+        drive.free_cycles,
+        tuple((fault, drive.guard.count(fault)) for fault in FrameFault),
     )
 
 
@@ -325,7 +348,7 @@ def _loop(
             drive.check()
             next_check = now + interval
         if own is not None:
-            if now >= master_at:
+            if now >= master_at and not own.running:  # else checked in each own cycle
                 deadline = drive.watch_master(now)
                 master_at = now + interval if deadline is None else min(deadline, now + interval)
             longest = watch.wait_s(now, interval) if busy_poll else interval
@@ -371,11 +394,16 @@ OWN_CLOCK_IDLE_S = 0.05
 
 def _own_cycles(drive: SimulatedDrive, own: OwnClock, now: float) -> None:
     """Run the cycles of the drive's own clock due at ``now`` (none at rest, power off)."""
-    n = own.due(now)
+    first, n = own.due(now)
     if not n:
         return
-    if not drive.driving:
+    if not (own.moving or drive.holding):
         own.idle(now, OWN_CLOCK_IDLE_S)
         return
-    for _ in range(n):
-        drive.free_cycle()
+    own.running = True
+    cycle_s = own.cycle_s
+    for i in range(n):
+        # the master's heartbeat checked at the cycle's own instant: a drive held off its
+        # CPU reacts in the cycle its clock says, not when it gets the CPU back
+        drive.watch_master(first + i * cycle_s)
+        own.moving = drive.free_cycle()

@@ -327,13 +327,10 @@ class ServoAxis:
                 self._take(self.sm.event(Event.FAULT_REACTION_COMPLETED))
 
     @property
-    def driving(self) -> bool:
-        """The power stage holds the axis (Operation enabled, a quick stop or fault
-        reaction ramp), or the axis still moves: its physics must go on."""
-        return self.sm.state in _DRIVING or (
-            abs(self._measured()[2]) > self.config.standstill_rad_s
-            or self._table.stored[O.DISTURBANCE] != 0
-        )
+    def holding(self) -> bool:
+        """The power stage holds the axis (Operation enabled, a quick stop or fault reaction
+        ramp) or a disturbance acts on it: its physics must go on."""
+        return self.sm.state in _DRIVING or self._table.stored[O.DISTURBANCE] != 0
 
     def abort_connection(self, code: int, data: bytes) -> int:
         """The connection to the master is lost (CiA 402 6007h: heartbeat, NMT Stopped or
