@@ -260,6 +260,7 @@ class CycleController:
         self._emcy_pending: tuple[int, int] | None = None
         self._heartbeat_at: float | None = None
         self._heartbeat_state = NMT_OPERATIONAL
+        self._operational_seen = False
         self._enable_started_s: float | None = None
         #: node-ID of a CiA 406 encoder supplying the load position (heartbeat-supervised)
         self.encoder_id: int | None = None
@@ -381,9 +382,17 @@ class CycleController:
 
     # --- events between cycles -------------------------------------------------------------
     def on_heartbeat(self, nmt_state: int, now_s: float) -> None:
-        """A heartbeat of the drive (NMT state byte without the toggle bit) at ``now_s``."""
+        """A heartbeat of the drive (NMT state byte without the toggle bit) at ``now_s``.
+        Its NMT state is supervised from the first Operational heartbeat after the start-up
+        on: a Pre-operational one the drive sent before it took the NMT start, read late on
+        a busy machine, is not a drive that left Operational (a drive that never becomes
+        Operational sends no TPDO: PDO loss stops the axis)."""
         self._heartbeat_at = now_s
-        self._heartbeat_state = nmt_state & 0x7F
+        state = nmt_state & 0x7F
+        if state == NMT_OPERATIONAL:
+            self._operational_seen = True
+        if self._operational_seen:
+            self._heartbeat_state = state
 
     def on_encoder_heartbeat(self, nmt_state: int, now_s: float) -> None:
         """A heartbeat of the CiA 406 encoder node (:attr:`encoder_id`) at ``now_s``."""
@@ -407,6 +416,7 @@ class CycleController:
         heartbeats during start-up); monitoring begins with the next heartbeat."""
         self._heartbeat_at = None
         self._heartbeat_state = NMT_OPERATIONAL
+        self._operational_seen = False
         self._encoder_heartbeat_at = None
         self._encoder_state = NMT_OPERATIONAL
         self._emcy_pending = None
@@ -662,7 +672,10 @@ class CycleController:
         if self._enable_started_s is None:
             self._enable_started_s = self.now_s
         ds = drive_state(self.statusword)
-        if ds is Drive402State.OPERATION_ENABLED:
+        if ds is Drive402State.OPERATION_ENABLED and self.consecutive_missed == 0:
+            # every frame of the layout came this cycle: the positions the move starts from
+            # are measured, not a default (on a busy machine the first TPDO1 may come late;
+            # holding a position never measured was a following error of the whole travel)
             self._enter_running()
             self._run()
             return
