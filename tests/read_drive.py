@@ -7,8 +7,9 @@ master and prints what it found as one JSON line: what a bridge that is gone lef
 with the motor at rest (606Ch at most 0.1 rad/s and 6064h the same in two reads in a row), a
 wait for a state (bounded only by :data:`BOUND_S`, a backstop for a drive that hangs).
 Every SDO request is repeated until answered, within the same backstop: a busy machine may
-hold an answer longer than any fixed timeout. ``--write``: download VALUE (an integer of
-the object's type) first, as a tool beside the bridge would (e.g. a TPDO switched off).
+hold an answer longer than any fixed timeout. ``--write``: only download VALUE (an integer of the
+object's type), as a tool beside the bridge would (e.g. a TPDO switched off), and end: a
+second SDO client on the drive's one SDO channel would take the bridge's answers.
 """
 
 from __future__ import annotations
@@ -71,6 +72,8 @@ def main(interface: str, channel: str, until_rest: bool, write: str | None = Non
                 except SdoCommunicationError:
                     if time.monotonic() > deadline:
                         raise
+            print(json.dumps({"written": write}), flush=True)
+            return 0  # and off the drive's SDO channel: the bridge may use it now
         got = {name: read(*key) for name, key in OBJECTS.items()}
         reads = 1
         while until_rest:

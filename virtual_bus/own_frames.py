@@ -140,17 +140,16 @@ class EchoSortingBus(can.BusABC):
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         entry = (_key(msg), _copy(msg))
-        with self._lock:  # queued first: its echo may be read by another thread at once
+        # queued and sent under one lock: the queue is in the order the kernel got the frames
+        # from the node's threads (the loop, the SDO client, the heartbeat), and the echo may
+        # be read by another thread at once
+        with self._lock:
             self._pending.append(entry)
-        try:
-            self._inner.send(msg, timeout)
-        except BaseException:
-            with self._lock:  # it never went out: no echo will come
-                for i in range(len(self._pending) - 1, -1, -1):
-                    if self._pending[i] is entry:
-                        del self._pending[i]
-                        break
-            raise
+            try:
+                self._inner.send(msg, timeout)
+            except BaseException:
+                self._pending.pop()  # it never went out: no echo will come
+                raise
 
     def fileno(self) -> int:
         return self._sock.fileno()
@@ -192,11 +191,12 @@ class EchoSortingBus(can.BusABC):
         key = _key(msg)
         lost = []
         with self._lock:
-            while self._pending:
-                sent_key, sent = self._pending.popleft()
-                if sent_key == key:
-                    break
-                lost.append(sent)
+            if any(sent_key == key for sent_key, _ in self._pending):
+                while self._pending:
+                    sent_key, sent = self._pending.popleft()
+                    if sent_key == key:
+                        break
+                    lost.append(sent)
         self.lost_echoes += len(lost)
         for sent in lost:
             self._own(sent)

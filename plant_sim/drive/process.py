@@ -178,6 +178,9 @@ class SyncWatch:
 #: A SYNC that has not come this share of a cycle after it was due is replaced by a cycle
 #: of the drive's own clock (a SYNC slot the master skips, one it sends late, a dead master).
 OWN_CLOCK_GRACE_FRACTION = 0.5
+#: Own cycles that are due wait until the socket is empty, at most for this many frames (a
+#: flood that never lets it empty must not stop the drive's clock).
+OWN_CLOCK_DRAIN_FRAMES = 256
 #: At most this many own cycles are run at once to catch up with the wall clock (a drive
 #: process held off its CPU for longer loses the rest: its physics falls behind, never
 #: runs in a burst longer than a second of cycles).
@@ -342,6 +345,7 @@ def _loop(
     own = OwnClock(cycle_s, OWN_CLOCK_GRACE_FRACTION * cycle_s) if real_time else None
     drive.wall = wall
     master_at = 0.0  # when to look at the master's heartbeat next
+    overdue_frames = 0  # frames read while own cycles were overdue
     while not stop.is_set():
         now = wall()
         if now >= next_check:
@@ -362,6 +366,7 @@ def _loop(
             if cob_id == NOTHING:
                 if own is not None:
                     _own_cycles(drive, own, wall())
+                    overdue_frames = 0
                 continue
             received, received_epoch = wall(), epoch()
             synced = take(cob_id, port, handle)
@@ -371,8 +376,15 @@ def _loop(
             continue
         due = None if own is None or synced else own.due_s
         if due is not None and received - due >= cycle_s:
-            # a flood of frames must not hold the clock: a cycle a whole cycle overdue runs
-            _own_cycles(drive, own, received)  # type: ignore[arg-type]
+            # own cycles overdue: they run once the socket is empty (every frame that came
+            # before their instants read: the master's heartbeat among them); a flood that
+            # never lets it empty must not hold the clock: after so many frames they run
+            overdue_frames += 1
+            if overdue_frames >= OWN_CLOCK_DRAIN_FRAMES:
+                _own_cycles(drive, own, received)  # type: ignore[arg-type]
+                overdue_frames = 0
+        else:
+            overdue_frames = 0
         if synced:  # a SYNC: answered, the physics stepped
             # the frame's own timestamp (epoch s: the kernel's receive time where the port
             # has it, python-can's messages) says how long it waited for this thread; a
