@@ -9,8 +9,8 @@ stops sending SYNC after it leaves the drive running on its last set point. So:
    on 0007h at the end of the moves with the axis at rest) until the drive's TPDOs show it
    out of Operation Enabled (Quick Stop Active, Switch On Disabled, Switched On, Fault: not
    Fault Reaction Active) with the motor at standstill (|606Ch| or the change of 6064h at most
-   :data:`STANDSTILL_RAD_S`); at most ``sync_s`` of cycles, fewer when the TPDOs stop coming
-   (200Ah + 1 cycles in a row without the statusword);
+   :data:`STANDSTILL_RAD_S`) for :data:`CONFIRM_S` in a row; at most ``sync_s`` of cycles,
+   fewer when the TPDOs stop coming (200Ah + 1 cycles in a row without them);
 2. **SDO** -- the drive answers no TPDO (PDO loss, NMT changed by someone else): 6041h read
    over SDO, the quick stop written to 6040h if it is still enabled, then 6041h / 606Ch read
    until it is out and at rest; SYNC and the stop RPDO keep going meanwhile (a drive whose
@@ -51,6 +51,10 @@ STANDSTILL_RAD_S = 0.1
 #: How long the SYNC way gives the drive's ramp (s of cycles): a quick stop from the highest
 #: speed of a machine-tool axis takes well under a second.
 HALT_SYNC_S = 3.0
+#: The drive must report standstill out of Operation Enabled this long in a row (s, at least
+#: three cycles): a motor whose power stage switched off at the end of the ramp can rebound
+#: from the elastic load it held, and the stop is confirmed once that has settled too.
+CONFIRM_S = 0.01
 #: How long the SDO way polls the drive (s of wall time).
 HALT_SDO_S = 3.0
 #: SDO timeout and tries of the SDO way (a drive that answers PDOs no more may still be busy).
@@ -123,6 +127,8 @@ def halt(
     velocity = _has_velocity(bridge)
     limit = max(1, math.ceil(sync_s / cycle_s))
     silent_limit = c.params.pdo_loss_tolerance + 1
+    confirm = max(3, math.ceil(CONFIRM_S / cycle_s))
+    still = 0  # cycles in a row at rest out of Operation Enabled
     silent = 0
     state: Drive402State | None = None
     speed: float | None = None
@@ -133,6 +139,7 @@ def halt(
         n += 1
         if c.consecutive_missed:  # not every TPDO came: no fresh state and speed
             silent += 1
+            still = 0
             last_position = None
             if silent > silent_limit:
                 break
@@ -146,7 +153,11 @@ def halt(
             speed = (position - last_position) / cycle_s
         last_position = position
         if state not in DRIVING and speed is not None and abs(speed) <= STANDSTILL_RAD_S:
-            return HaltResult(HaltWay.SYNC, True, state, speed, n)
+            still += 1
+            if still >= confirm:
+                return HaltResult(HaltWay.SYNC, True, state, speed, n)
+        else:
+            still = 0
     if silent <= silent_limit:  # the drive answered, and did not stop within the bound
         return HaltResult(
             HaltWay.SYNC, False, state, speed, n, detail=f"not at rest after {sync_s:g} s"
