@@ -161,12 +161,15 @@ class DriveMaster:
         load_increments_per_unit: float = LOAD_INCREMENTS_PER_UNIT[AxisKind.LINEAR],
         bridge_id: int | None = None,
         heartbeat_ms: int = 0,
+        heartbeat_now: Callable[[], None] | None = None,
     ) -> None:
         self.drive = drive
         #: the bridge's node-ID and heartbeat period (1017h): the drive is set to watch them
         #: (None: no supervision planned, e.g. an encoder node)
         self.bridge_id = bridge_id
         self.heartbeat_ms = heartbeat_ms
+        #: sends the bridge's heartbeat at once: the drive's consumer starts watching with it
+        self.heartbeat_now = heartbeat_now
         self.supervision: Supervision | None = None
         #: (object, value before the start-up wrote it) of the supervision objects
         self.restored: tuple[tuple[ObjectKey, bytes], ...] = ()
@@ -474,6 +477,10 @@ class DriveMaster:
         self.write(0x1017, 0, _U16.pack(self.setup.heartbeat_producer_ms), " (producer heartbeat)")
         if supervision is not None:
             self.configure_supervision(supervision)
+            if self.heartbeat_now is not None and supervision.consumer_ms is not None:
+                # CiA 301: the watch starts with the first heartbeat after the entry was
+                # written; one now, before the drive is enabled
+                self.heartbeat_now()
         return the_plan, facts, mode
 
     def plan_supervision(self, facts: DriveFacts) -> Supervision:

@@ -88,6 +88,16 @@ class BridgeNmt:
         self._send(self._can_id, bytes([NmtState.INITIALISING]))
         self._due_s = None
 
+    def beat(self) -> None:
+        """A heartbeat now (when 1017h is not 0), the period starting anew: CiA 301 lets a
+        consumer start watching only with the first heartbeat it receives, so the start-up
+        sends one right after it configured the drive's consumer, before it enables the
+        drive (a bridge killed within the first period would otherwise never be watched)."""
+        if self._period_s > 0.0:
+            self._send(self._can_id, bytes([self.state]))
+            self.heartbeats_sent += 1
+            self._due_s = None
+
     def execute(self, command: NmtCommand) -> None:
         if command in (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION):
             self._set(NmtState.INITIALISING)

@@ -413,6 +413,7 @@ class Bridge:
                     load_increments_per_unit=self.scaling.load_increments_per_unit,
                     bridge_id=self.config.node_id,
                     heartbeat_ms=self.nmt.period_ms,
+                    heartbeat_now=self.nmt.beat,
                 )
                 info = master.run()
             self.drive_info = info

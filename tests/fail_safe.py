@@ -333,6 +333,7 @@ def check_kill(wire: Wire, axis: Path, tmp: Path, observer: Program, drive: Prog
     decel_load = 5e7 * 2 * math.pi / 2**20 / loaded.transmission_ratio  # 6085h default, m/s^2
     bound = feed_m_s * (CONSUMER_MS + 2 * cycle_ms) * 1e-3 + 2 * feed_m_s**2 / (2 * decel_load)
     assert 0.0 < travel_m <= bound, (travel_m, bound)
+    print(f"travel after the last TPDO1: {travel_m * 1e3:.2f} mm (bound {bound * 1e3:.2f} mm)")
     return record[emcy_at].time_s - before[last_heartbeat].time_s
 
 

@@ -352,12 +352,15 @@ def _loop(
             drive.check()
             next_check = now + interval
         if own is not None:
-            if now >= master_at and not own.running:  # else checked in each own cycle
-                deadline = drive.watch_master(now)
-                master_at = now + interval if deadline is None else min(deadline, now + interval)
             longest = watch.wait_s(now, interval) if busy_poll else interval
-            if master_at < now + longest:
-                longest = max(0.0, master_at - now)
+            if not own.running:  # (while it runs, each own cycle checks the master)
+                if now >= master_at:
+                    deadline = drive.watch_master(now)
+                    master_at = now + interval
+                    if deadline is not None:
+                        master_at = min(deadline, master_at)
+                if master_at < now + longest:
+                    longest = max(0.0, master_at - now)
             timeout = own.wait_s(now, longest)
         else:
             timeout = watch.wait_s(now, interval) if busy_poll else interval

@@ -269,3 +269,30 @@ def test_without_sdo_the_stop_is_left_to_the_drive_by_nmt(
             break
         tool.nmt.wait_for_heartbeat(timeout=1.0)  # a heartbeat of it: its clock went on
     assert drive.state is State402.SWITCH_ON_DISABLED
+
+
+def test_a_bridge_that_dies_in_its_first_cycles_is_watched_already(
+    served: tuple[str, threading.Event, list], tool: canopen.RemoteNode
+) -> None:
+    """CiA 301: a consumer watches from the first heartbeat it receives. The start-up sends
+    one right after it configured the drive's consumer, before it enables the drive: a bridge
+    gone after a few cycles -- before its first periodic heartbeat -- is still watched, and
+    the drive (its own clock, real time) stops itself."""
+    drive = served[2][0]
+    bus = can.Bus(interface="virtual", channel=served[0])
+    b = Bridge(bus, BridgeParams.for_axis(AXIS), AXIS.kind, LockstepPacer(0.001, wait_s=0.01))
+    try:
+        b.start()
+        b.controller.queue_move(Move(0.05, 0.02))
+        b.run(cycles=20)  # 20 ms of simulated time: no periodic heartbeat yet
+        assert b.nmt.heartbeats_sent == 1  # the one of the start-up
+        assert drive.state is State402.OPERATION_ENABLED
+    finally:
+        b.close()
+        bus.shutdown()  # the bridge is gone: nothing of it on the bus any more
+    for _ in range(int(BOUND_S * 10)):  # the drive's heartbeats: its clock goes on
+        if drive.state is not State402.OPERATION_ENABLED:
+            break
+        tool.nmt.wait_for_heartbeat(timeout=1.0)
+    assert drive.state in (State402.QUICK_STOP_ACTIVE, State402.SWITCH_ON_DISABLED)
+    assert drive.error_code == 0x8130
