@@ -251,12 +251,16 @@ class CycleController:
         self.set_scaling(scaling)
         self.now_s = 0.0
         self.controlword = CW_DISABLED
+        #: what DISABLED commands: switch on, no motion (0007h), or the quick stop (0002h)
+        #: after :meth:`halt` -- the drive's own ramp to standstill, never a coasting axis
+        self.disabled_controlword = CW_DISABLED
         # supervision
         self.cycles = 0
         self.drive_error_code = 0
         self._emcy_pending: tuple[int, int] | None = None
         self._heartbeat_at: float | None = None
         self._heartbeat_state = NMT_OPERATIONAL
+        self._operational_seen = False
         self._enable_started_s: float | None = None
         #: node-ID of a CiA 406 encoder supplying the load position (heartbeat-supervised)
         self.encoder_id: int | None = None
@@ -378,9 +382,17 @@ class CycleController:
 
     # --- events between cycles -------------------------------------------------------------
     def on_heartbeat(self, nmt_state: int, now_s: float) -> None:
-        """A heartbeat of the drive (NMT state byte without the toggle bit) at ``now_s``."""
+        """A heartbeat of the drive (NMT state byte without the toggle bit) at ``now_s``.
+        Its NMT state is supervised from the first Operational heartbeat after the start-up
+        on: a Pre-operational one the drive sent before it took the NMT start, read late on
+        a busy machine, is not a drive that left Operational (a drive that never becomes
+        Operational sends no TPDO: PDO loss stops the axis)."""
         self._heartbeat_at = now_s
-        self._heartbeat_state = nmt_state & 0x7F
+        state = nmt_state & 0x7F
+        if state == NMT_OPERATIONAL:
+            self._operational_seen = True
+        if self._operational_seen:
+            self._heartbeat_state = state
 
     def on_encoder_heartbeat(self, nmt_state: int, now_s: float) -> None:
         """A heartbeat of the CiA 406 encoder node (:attr:`encoder_id`) at ``now_s``."""
@@ -404,6 +416,7 @@ class CycleController:
         heartbeats during start-up); monitoring begins with the next heartbeat."""
         self._heartbeat_at = None
         self._heartbeat_state = NMT_OPERATIONAL
+        self._operational_seen = False
         self._encoder_heartbeat_at = None
         self._encoder_state = NMT_OPERATIONAL
         self._emcy_pending = None
@@ -413,6 +426,7 @@ class CycleController:
         """Enable, disable or reset; ParameterError 0800 0022 if not possible now."""
         state = self.state
         if command is Command.ENABLE and state is BridgeState.DISABLED:
+            self.disabled_controlword = CW_DISABLED
             self._set_enabling()
         elif command is Command.DISABLE and state in (BridgeState.ENABLING, BridgeState.RUNNING):
             self.state = BridgeState.DISABLED
@@ -435,6 +449,21 @@ class CycleController:
                 value=int(command),
                 abort_code=SdoAbort.DEVICE_STATE,
             )
+
+    def halt(self) -> None:
+        """The end of a run while the axis may move (a signal, ``--seconds`` in a move):
+        DISABLED with the quick stop (0002h, set point 0), so that the drive ramps the motor
+        to standstill (6085h, 605Ah) instead of switching the power stage off and letting it
+        coast. A stop in force keeps its reason (it already commands the quick stop)."""
+        if self.axis_enabled:
+            self.state = BridgeState.DISABLED
+            self._clear_motion()
+        self.disabled_controlword = CW_STOPPED
+
+    @property
+    def status_received(self) -> bool:
+        """The drive's statusword came in the last cycle."""
+        return self._status_in
 
     def stop(self, reason: StopReason, message: str) -> None:
         """Stop the axis from outside the controller (the loop: overruns, its own errors);
@@ -574,7 +603,7 @@ class CycleController:
         elif state is _STOPPED:
             self._output(CW_STOPPED, 0.0)
         else:
-            self._output(CW_DISABLED, 0.0)
+            self._output(self.disabled_controlword, 0.0)
         return self._rpdo
 
     def _supervise(self) -> bool:
@@ -643,7 +672,10 @@ class CycleController:
         if self._enable_started_s is None:
             self._enable_started_s = self.now_s
         ds = drive_state(self.statusword)
-        if ds is Drive402State.OPERATION_ENABLED:
+        if ds is Drive402State.OPERATION_ENABLED and self.consecutive_missed == 0:
+            # every frame of the layout came this cycle: the positions the move starts from
+            # are measured, not a default (on a busy machine the first TPDO1 may come late;
+            # holding a position never measured was a following error of the whole travel)
             self._enter_running()
             self._run()
             return

@@ -13,7 +13,9 @@ Sequence (docs/canopen_layout.md, CiA 301 PDO configuration procedure, CiA 402):
    (0604 0041 / 0604 0042) is left out and the layout planned again; the drive's other PDOs
    are switched off (objects the drive lacks are skipped);
 5. 6060h = 9 (cyclic synchronous velocity) or 3 (profile velocity, with 6083h/6084h opened),
-   checked in 6061h; 1017h producer heartbeat time;
+   checked in 6061h; 1017h producer heartbeat time; the drive's supervision of the bridge
+   (:mod:`bridge.supervision`: 1016h heartbeat consumer, 6007h, a set-point watchdog), each
+   object's value read first, to be written back at the end (:meth:`DriveMaster.restore`);
 6. a CiA 406 encoder node supplying the load position: its TPDO1 = 6004h on every SYNC,
    its heartbeat; NMT start of encoder and drive;
 7. CiA 402 state machine to Operation Enabled through 6040h/6041h (paths of
@@ -61,8 +63,9 @@ from .adapt import (
 from .cycle import Drive402State, drive_state, enable_controlword
 from .errors import BridgeConfigError, DriveSetupError, DriveTimeoutError, SdoAbort
 from .layout import CycleLayout, Signal, check_node_id
-from .profile import DriveProfile
+from .profile import DriveProfile, ObjectKey
 from .scaling import LOAD_INCREMENTS_PER_UNIT, Scaling
+from .supervision import SUPERVISION_OBJECTS, Supervision, plan_supervision
 
 log = logging.getLogger("bridge")
 
@@ -121,6 +124,9 @@ class DriveInfo:
     scaling: Scaling
     encoder_id: int | None = None
     notes: tuple[str, ...] = ()
+    #: the drive's supervision of the bridge as configured, and the values it replaced
+    supervision: Supervision | None = None
+    restore: tuple[tuple[ObjectKey, bytes], ...] = ()
 
 
 #: SDO abort codes that mean "this object / sub-index is not there".
@@ -153,8 +159,20 @@ class DriveMaster:
         *,
         profile: DriveProfile | None = None,
         load_increments_per_unit: float = LOAD_INCREMENTS_PER_UNIT[AxisKind.LINEAR],
+        bridge_id: int | None = None,
+        heartbeat_ms: int = 0,
+        heartbeat_now: Callable[[], None] | None = None,
     ) -> None:
         self.drive = drive
+        #: the bridge's node-ID and heartbeat period (1017h): the drive is set to watch them
+        #: (None: no supervision planned, e.g. an encoder node)
+        self.bridge_id = bridge_id
+        self.heartbeat_ms = heartbeat_ms
+        #: sends the bridge's heartbeat at once: the drive's consumer starts watching with it
+        self.heartbeat_now = heartbeat_now
+        self.supervision: Supervision | None = None
+        #: (object, value before the start-up wrote it) of the supervision objects
+        self.restored: tuple[tuple[ObjectKey, bytes], ...] = ()
         self.setup = setup
         self.profile = profile or DriveProfile()
         self.load_increments_per_unit = load_increments_per_unit
@@ -265,14 +283,23 @@ class DriveMaster:
         device_type = self._u32(0x1000, 0)  # first: a node that is not there times out here
         vendor_id, product_code = self._u32(0x1018, 1), self._u32(0x1018, 2)
         objects: dict[tuple[int, int], bytes] = {}
-        keys = list(CANDIDATES)
-        if self.profile.load_object is not None:
-            keys.append(self.profile.load_object)
+        keys = [*CANDIDATES, *SUPERVISION_OBJECTS]
+        for extra in (self.profile.load_object, self.profile.setpoint_timeout_object):
+            if extra is not None:
+                keys.append(extra)
         for key in keys:
             raw = self.try_read(*key)
             if raw is not None:
                 objects[key] = raw
         modes_raw = self.try_read(0x6502, 0, " (supported drive modes)")
+        entries = self.profile.heartbeat_consumer_entries
+        if entries is None:
+            raw_count = objects.get(SUPERVISION_OBJECTS[0])
+            entries = raw_count[0] if raw_count else 0
+        for sub in range(1, min(entries, 127) + 1):  # the 1016h entries: which one is free
+            raw = self.try_read(SUPERVISION_OBJECTS[0][0], sub, " (consumer heartbeat time)")
+            if raw is not None:
+                objects[(SUPERVISION_OBJECTS[0][0], sub)] = raw
         return DriveFacts(
             device_type=device_type,
             vendor_id=vendor_id,
@@ -425,6 +452,8 @@ class DriveMaster:
         self.drive.nmt.send_command(NmtCommand.ENTER_PRE_OPERATIONAL)
         facts = self.read_facts()
         the_plan = self.plan(facts)
+        # planned before anything is written: a profile naming what the drive lacks stops here
+        supervision = None if self.bridge_id is None else self.plan_supervision(facts)
         while True:  # each round leaves out one more object the drive refused to map
             try:
                 for spec in the_plan.tpdos:
@@ -446,7 +475,48 @@ class DriveMaster:
             self.open_ramps(facts)
         mode = self.set_mode(the_plan.mode)
         self.write(0x1017, 0, _U16.pack(self.setup.heartbeat_producer_ms), " (producer heartbeat)")
+        if supervision is not None:
+            self.configure_supervision(supervision)
+            if self.heartbeat_now is not None and supervision.consumer_ms is not None:
+                # CiA 301: the watch starts with the first heartbeat after the entry was
+                # written; one now, before the drive is enabled
+                self.heartbeat_now()
         return the_plan, facts, mode
+
+    def plan_supervision(self, facts: DriveFacts) -> Supervision:
+        """:func:`bridge.supervision.plan_supervision` for this bridge."""
+        assert self.bridge_id is not None
+        return plan_supervision(
+            facts, self.profile, self.drive.id, self.bridge_id, self.heartbeat_ms
+        )
+
+    def configure_supervision(self, supervision: Supervision) -> None:
+        """Write the drive's supervision of the bridge, each object's value read first
+        (:attr:`restored`, for :meth:`restore`)."""
+        restored = []
+        for write in supervision.writes:
+            before = self.try_read(*write.key)
+            if before:
+                restored.append((write.key, before))
+            self.write(*write.key, write.data, f" ({write.what})")
+        self.supervision = supervision
+        self.restored = tuple(restored)
+        for line in supervision.describe():
+            log.info("drive %d: %s", self.drive.id, line)
+        for note in supervision.notes:
+            log.warning("drive %d: %s", self.drive.id, note)
+
+    def restore(self, restored: tuple[tuple[ObjectKey, bytes], ...]) -> list[str]:
+        """Write back the values the supervision objects had before the start-up (the
+        bridge ends in order: nothing watches it any more); the objects not written back,
+        each with why (an empty list: all)."""
+        failed = []
+        for key, data in restored:
+            try:
+                self.write(*key, data, " (as it was before the start-up)")
+            except DriveSetupError as exc:
+                failed.append(str(exc))
+        return failed
 
     def configure_encoder(self, encoder_id: int) -> None:
         """CiA 406 encoder node: TPDO1 = 6004h position value on every SYNC, heartbeat."""
@@ -510,4 +580,6 @@ class DriveMaster:
             the_plan.scaling,
             the_plan.encoder_id,
             the_plan.notes,
+            self.supervision,
+            self.restored,
         )

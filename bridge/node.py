@@ -272,6 +272,7 @@ class Bridge:
                 f"service_guard_fraction = {service_guard_fraction!r}: must be in [0, 1)"
             )
         self.overrun_limit = overrun_limit
+        self._lockstep = pacer.mode is TimeMode.LOCKSTEP
         self.service_guard_s = service_guard_fraction * pacer.cycle_s
         self.gc_control = gc_control
         self.busy_poll = busy_poll
@@ -398,8 +399,11 @@ class Bridge:
 
     # --- start-up ---------------------------------------------------------------------------
     def start(self, configure_drive: bool = True) -> DriveInfo | None:
-        """Configure the drive over SDO and bring it to Operation Enabled (blocking), then make
-        the controller ready to enable the axis at the first cycle."""
+        """Announce the bridge (its boot-up message, then its heartbeat), configure the drive
+        over SDO -- its supervision of the bridge included (bridge.supervision) -- and bring
+        it to Operation Enabled (blocking), then make the controller ready to enable the
+        axis at the first cycle."""
+        self.nmt.boot()  # a drive that watched a bridge before sees this one restarted
         if configure_drive:
             with self.serving():
                 master = DriveMaster(
@@ -407,6 +411,9 @@ class Bridge:
                     self.config.drive_setup,
                     profile=self.config.profile,
                     load_increments_per_unit=self.scaling.load_increments_per_unit,
+                    bridge_id=self.config.node_id,
+                    heartbeat_ms=self.nmt.period_ms,
+                    heartbeat_now=self.nmt.beat,
                 )
                 info = master.run()
             self.drive_info = info
@@ -582,6 +589,16 @@ class Bridge:
             )
         return host
 
+    def keep_clock(self) -> None:
+        """SYNC and the RPDO as they stand, without a cycle (nothing is received): the stop
+        path asks a drive over SDO meanwhile (bridge.halt), and a drive whose clock is SYNC
+        runs its ramp only on SYNC."""
+        for frame in (self._sync_frame, self._rpdo_frame):
+            try:
+                frame.send()
+            except (can.CanError, OSError) as exc:
+                self._send_failed(frame, exc)
+
     def drain(self) -> None:
         """Handle the frames already received, outside any cycle (TPDOs count as late)."""
         self._between_cycles(None)
@@ -718,7 +735,13 @@ class Bridge:
                 0.0 if due is None else sync_wall - due, now - sync_wall, now - inputs_wall, work
             )
         self._record_pending = self.recorder is not None
-        self.nmt.tick(now_s)  # the heartbeat (1017h), on the loop's clock
+        # the heartbeat (1017h): on the wall clock in real time, as between runs (no gap);
+        # in lockstep on the simulated time and the wall clock, whichever is due first (a
+        # drive watches on SYNC time or on its own clock, bridge.nmt)
+        if self._lockstep:
+            self.nmt.tick(now_s, wall())
+        else:
+            self.nmt.tick(wall())
         self._k = k + 1
 
     def run(self, cycles: int | None = None, until: Callable[[Bridge], bool] | None = None) -> int:

@@ -140,9 +140,10 @@ STORE_ON_COMMAND = 0x0000_0001
 #: Default software position limits (2014h), load units: +-2 m covers the INTEGER32 nm range
 #: of 2010h (+-2.147 m).
 DEFAULT_POSITION_LIMIT = 2.0
-#: Heartbeat producer time 1017h default, ms: 0 = off (CiA 301); a tool that supervises the
-#: bridge sets it (bridge.nmt).
-DEFAULT_HEARTBEAT_MS = 0
+#: Heartbeat producer time 1017h default, ms (CiA 301; 0 = off): the drive's heartbeat
+#: consumer (1016h, configured by the start-up) and any watching node (CANopenNode, Lely) see
+#: the bridge alive by it (bridge.nmt, bridge.supervision).
+DEFAULT_HEARTBEAT_MS = 100
 #: The smallest positive REAL32 (2^-149): the LowLimit of a range open at 0, "(0, x]".
 SMALLEST_REAL32 = 2.0**-149
 #: Load-scale increments per load unit the EDS's rules assume (a linear axis: nm per m; a
@@ -285,7 +286,8 @@ OBJECTS: tuple[Entry | Group, ...] = (
         RW,
         DEFAULT_HEARTBEAT_MS,
         "ms",
-        "the bridge's heartbeat (its NMT state) every so many ms; 0: off",
+        "the bridge's heartbeat (its NMT state) every so many ms; 0: off (then the drive "
+        "cannot watch the bridge: the start-up configures its 1016h from this)",
     ),
     Group(
         IDENTITY,

@@ -8,12 +8,17 @@ that from the drive's EDS (its ``PDOMapping`` flags) and names the manufacturer 
 could carry the load position (:mod:`bridge.candidates`); CiA 406 encoder nodes are found
 among the nodes heard on the bus and ``--scan`` node-IDs.
 
-Then it prints the load-scale candidates, the start-up's plan for the profile it writes --
-or **every** problem the start-up would stop on, each with its object, what the drive showed
-and the profile key that replaces it (one round of commissioning, not one per problem). The
-written profile is consistent with what the probe found: its load source is the best usable
-candidate (never an object the EDS marks not mappable). Exit 0 either way (the profile is
-for the user to complete); 1 when the drive does not answer, 2 for bad arguments.
+Then it prints the load-scale candidates, how the drive can supervise the bridge (1016h
+heartbeat consumer, 6007h abort connection option code, a set-point watchdog;
+:mod:`bridge.supervision`) and what the start-up would write for it, the start-up's plan for
+the profile it writes -- or **every** problem the start-up would stop on, each with its
+object, what the drive showed and the profile key that replaces it (one round of
+commissioning, not one per problem). The written profile is consistent with what the probe
+found: its load source is the best usable candidate (never an object the EDS marks not
+mappable). ``--eds`` is checked before the bus is opened (a file that is not an EDS: one
+line, exit 2). Exit 0 when the start-up would run the drive; 1 when it would stop (the
+profile is written all the same, for the user to complete) or the drive does not answer;
+2 for bad arguments.
 """
 
 from __future__ import annotations
@@ -30,8 +35,15 @@ from canopen.objectdictionary import ODVariable
 from cmdline import cli
 from virtual_bus import BusConfig, open_bus
 from virtual_bus.atomic import write_atomic
-from virtual_bus.contract import TPDO_MAPPING_BASE, NmtCommand, pdo_comm_index, pdo_mapping_index
+from virtual_bus.contract import (
+    ABORT_CONNECTION_INDEX,
+    TPDO_MAPPING_BASE,
+    NmtCommand,
+    pdo_comm_index,
+    pdo_mapping_index,
+)
 from virtual_bus.formats.axis import AxisKind
+from virtual_bus.formats.eds import check_eds_file
 
 from . import candidates as cand
 from .adapt import (
@@ -46,8 +58,10 @@ from .errors import BridgeConfigError, DriveSetupError
 from .layout import check_node_id
 from .master import DriveMaster, DriveSetup
 from .node import pumping
+from .od import DEFAULT_HEARTBEAT_MS, DEFAULT_NODE_ID
 from .profile import DriveProfile, LoadSource, ModeChoice, ObjectKey, format_key, render_profile
 from .scaling import LOAD_INCREMENTS_PER_UNIT
+from .supervision import Supervision, consumer_entries, plan_supervision
 
 NAME = "probe"
 HELP = "read a connected drive over SDO: what it supports; --out writes a drive profile"
@@ -75,11 +89,16 @@ COMMISSIONING_FIELDS = (
     "position_increments_per_rev",
     "velocity_units_per_rev_s",
     "ramp",
+    "setpoint_timeout_object",
+    "setpoint_timeout",
+    "setpoint_timeout_type",
 )
 
 
 def import_eds(path: Path, node_id: int) -> canopen.ObjectDictionary:
-    """The drive's EDS (BridgeConfigError, one line, when it cannot be read)."""
+    """The drive's EDS (EdsFileError when the file is not an EDS at all, BridgeConfigError
+    when python canopen cannot import it; one line each)."""
+    check_eds_file(path)
     try:
         return canopen.import_od(str(path), node_id)
     except Exception as exc:  # the EDS parser raises many kinds
@@ -132,6 +151,7 @@ def profile_from_facts(
     entries = [p.entries for p in facts.tpdos if p.entries]
     rpdos = [p.number for p in facts.rpdos]
     rated = None if facts.u32((0x6076, 0)) else 0
+    has_6007 = facts.has((ABORT_CONNECTION_INDEX, 0))
     return DriveProfile(
         name=name,
         vendor_id=facts.vendor_id,
@@ -147,6 +167,8 @@ def profile_from_facts(
         encoder_id=encoder_id,
         position_increments_per_rev=position,
         rated_torque_mnm=rated,
+        heartbeat_consumer_entries=consumer_entries(facts, DriveProfile()),
+        abort_connection_option=3 if has_6007 else None,
     )
 
 
@@ -389,6 +411,27 @@ def static_mapping(
     return found
 
 
+def describe_supervision(facts: DriveFacts, supervision: Supervision | None) -> list[str]:
+    """How the drive can watch the bridge, and what the start-up would write for it."""
+    entries = consumer_entries(facts, DriveProfile())
+    abort = facts.objects.get((ABORT_CONNECTION_INDEX, 0))
+    lines = [
+        "supervision of the bridge (if the bridge dies, the drive stops by these):",
+        "  1016h heartbeat consumer: "
+        + (f"{entries} entr{'y' if entries == 1 else 'ies'}" if entries else "absent"),
+        "  6007h abort connection option code: "
+        + (
+            f"present (now {int.from_bytes(abort[:2], 'little', signed=True)})"
+            if abort
+            else "absent"
+        ),
+    ]
+    if supervision is not None:
+        lines += [f"  the start-up writes {line}" for line in supervision.describe()]
+        lines += [f"  note: {note}" for note in supervision.notes]
+    return lines
+
+
 def report(
     result: ProbeResult | DriveFacts,
     drive_id: int,
@@ -397,8 +440,9 @@ def report(
     out: Path | None,
     od: canopen.ObjectDictionary | None = None,
 ) -> int:
-    """Print what was found, the load-scale candidates and the start-up's plan -- or every
-    problem it would stop on; write the profile to ``out``."""
+    """Print what was found, the load-scale candidates, the drive's supervision of the bridge
+    and the start-up's plan -- or every problem it would stop on; write the profile to
+    ``out``. 0: the start-up would run the drive; 1: it would stop."""
     if isinstance(result, DriveFacts):
         result = ProbeResult(result)
     facts = result.facts
@@ -418,12 +462,22 @@ def report(
             + "; --scan looks for CiA 406 encoder nodes)"
         )
     fixed = static_mapping(od, profile, drive_id) if od is not None else []
+    problems: list[DriveSetupError] = []
+    supervision = None
+    try:  # the bridge's defaults: node-ID 1, heartbeat 100 ms (1017h)
+        supervision = plan_supervision(
+            facts, profile, drive_id, DEFAULT_NODE_ID, DEFAULT_HEARTBEAT_MS
+        )
+    except DriveSetupError as exc:
+        problems.append(exc)
+    for line in describe_supervision(facts, supervision):
+        print(line)
     try:
         the_plan = plan(facts, profile, drive_id, LOAD_INCREMENTS_PER_UNIT[AxisKind.LINEAR])
-        if fixed:
-            raise fixed[0]
+        if fixed or problems:
+            raise (fixed or problems)[0]
     except DriveSetupError as exc:
-        problems = [*(exc.problems or (exc,)), *(p for p in fixed if p is not exc)]
+        problems = [*(exc.problems or (exc,)), *(p for p in [*fixed, *problems] if p is not exc)]
         print(f"start-up would stop: {len(problems)} problem(s), all of them:")
         for i, problem in enumerate(problems, start=1):
             print(f"  {i}. {problem}")
@@ -442,4 +496,4 @@ def report(
             comments += (f"load source: the best candidate the probe saw, {chosen.describe()}",)
         write_atomic(out, render_profile(profile, comments))
         print(f"wrote {out}")
-    return 0
+    return 1 if problems else 0

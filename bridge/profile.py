@@ -100,6 +100,13 @@ class DriveProfile:
     (None: 608Fh/6091h/6092h of the drive). velocity_units_per_rev_s: 606Ch/60FFh units per
     motor revolution per second (None: position units per s). rated_torque_mnm: 6076h in
     mN·m (None: read 6076h; 0: torque shown in per mille of the rated torque).
+
+    How the drive supervises the bridge (``bridge.supervision``; CiA 301 1016h, CiA 402
+    6007h): heartbeat_consumer_entries: the number of 1016h entries (None: read 1016h:00; 0:
+    the drive has no heartbeat consumer). abort_connection_option: the 6007h value written
+    (None: 3, quick stop, where the drive has 6007h). setpoint_timeout_object /
+    setpoint_timeout / setpoint_timeout_type: a manufacturer set-point watchdog and the
+    value written to it (None: none; the contract's drive has 2102h, SYNCs without an RPDO).
     """
 
     name: str = "adaptive"
@@ -122,6 +129,11 @@ class DriveProfile:
     position_increments_per_rev: float | None = None
     velocity_units_per_rev_s: float | None = None
     rated_torque_mnm: int | None = None
+    heartbeat_consumer_entries: int | None = None
+    abort_connection_option: int | None = None
+    setpoint_timeout_object: ObjectKey | None = None
+    setpoint_timeout: int = 3
+    setpoint_timeout_type: str = "u8"
 
     def __post_init__(self) -> None:
         def bad(key: str, allowed: str) -> ProfileError:
@@ -190,6 +202,26 @@ class DriveProfile:
         r = self.rated_torque_mnm
         if r is not None and not (is_int(r) and 0 <= r <= 0xFFFF_FFFF):
             raise bad("rated_torque_mnm", "an UNSIGNED32 in mN·m (0: torque in per mille)")
+        n = self.heartbeat_consumer_entries
+        if n is not None and not (is_int(n) and 0 <= n <= 127):
+            raise bad("heartbeat_consumer_entries", "1016h entries 0..127 (0: no consumer)")
+        a = self.abort_connection_option
+        if a is not None and not (is_int(a) and -32768 <= a <= 32767):
+            raise bad(
+                "abort_connection_option",
+                "a 6007h value, INTEGER16 (0 none, 1 fault, 2 disable voltage, 3 quick stop; "
+                "negative: the manufacturer's)",
+            )
+        if (
+            not isinstance(self.setpoint_timeout_type, str)
+            or self.setpoint_timeout_type not in OBJECT_TYPES
+        ):
+            raise bad("setpoint_timeout_type", f"one of {sorted(OBJECT_TYPES)}")
+        bits, signed = OBJECT_TYPES[self.setpoint_timeout_type]
+        top = (1 << (bits - 1 if signed else bits)) - 1
+        t = self.setpoint_timeout
+        if not (is_int(t) and 0 <= t <= top):
+            raise bad("setpoint_timeout", f"an integer 0..{top} ({self.setpoint_timeout_type})")
 
     def may_map(self, key: ObjectKey) -> bool:
         """The profile does not rule out mapping ``key``."""
@@ -218,6 +250,13 @@ _LAYOUT: dict[str, tuple[str, ...]] = {
         "load_increments_per_unit",
     ),
     "scaling": ("position_increments_per_rev", "velocity_units_per_rev_s", "rated_torque_mnm"),
+    "supervision": (
+        "heartbeat_consumer_entries",
+        "abort_connection_option",
+        "setpoint_timeout_object",
+        "setpoint_timeout",
+        "setpoint_timeout_type",
+    ),
 }
 _TOML_NAME = {"load_source": "source", "load_object": "object", "load_object_type": "object_type"}
 _TOML_NAME |= {"load_increments_per_unit": "increments_per_unit"}
@@ -239,7 +278,7 @@ def _convert(name: str, value: object, where: str) -> object:
             raise ValueError(
                 f"{where} = {value!r}: allowed {[s.value for s in LoadSource]}"
             ) from None
-    if name == "load_object":
+    if name in ("load_object", "setpoint_timeout_object"):
         return parse_key(value, where)
     if name == "mappable":
         if not isinstance(value, list):
@@ -295,7 +334,7 @@ def load_profile(path: str | Path) -> DriveProfile:
 def _toml_value(name: str, value: object) -> str:
     if isinstance(value, Enum):
         return f'"{value.value}"'
-    if name == "load_object":
+    if name in ("load_object", "setpoint_timeout_object"):
         return f'"{format_key(value)}"'  # type: ignore[arg-type]
     if name == "mappable":
         keys = [f'"{format_key(k)}"' for k in sorted(value)]  # type: ignore[call-overload]

@@ -13,6 +13,7 @@ abort codes, 7.1.4 data types), CiA 402 (6040h/6041h bits), docs/canopen_layout.
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Sequence
 from enum import Enum, IntEnum
@@ -170,6 +171,60 @@ def nmt_command_for(data: bytes | bytearray, node_id: int) -> NmtCommand | None:
     except ValueError:
         allowed = ", ".join(f"0x{c:02X}" for c in NmtCommand)
         raise ValueError(f"NMT command 0x{specifier:02X} ignored; allowed {allowed}") from None
+
+
+# --- master supervision (CiA 301 7.2.8.3.2 heartbeat, CiA 402 6007h) ----------------------------
+#: Consumer heartbeat time (ARRAY of UNSIGNED32: node-ID << 16 | ms) and producer heartbeat
+#: time (UNSIGNED16, ms) of every CANopen device (CiA 301 7.5.2.19/20).
+HEARTBEAT_CONSUMER_INDEX = 0x1016
+HEARTBEAT_PRODUCER_INDEX = 0x1017
+#: CiA 402 abort connection option code (INTEGER16): what a drive does when it loses its
+#: master (heartbeat or life guarding lost, NMT Stopped entered, reset communication, bus-off).
+ABORT_CONNECTION_INDEX = 0x6007
+#: A consumer's time is this many of the producer's periods: one heartbeat may be lost and
+#: the next come late by half a period before the consumer reacts (both ends: the bridge
+#: watches the drive's 100 ms with 250 ms, the drive the bridge's with 2.5 x its 1017h).
+HEARTBEAT_CONSUMER_MARGIN = 2.5
+#: The node-ID field of a 1016h entry is bits 16..23; bits 24..31 are reserved (0).
+HEARTBEAT_CONSUMER_MAX = 0x007F_FFFF
+
+
+class AbortConnection(IntEnum):
+    """6007h values of CiA 402 (negative values are manufacturer specific)."""
+
+    NO_ACTION = 0
+    FAULT = 1  # fault signal: Fault Reaction Active, then Fault
+    DISABLE_VOLTAGE = 2  # the power stage off at once: the axis coasts
+    QUICK_STOP = 3  # the quick stop ramp (6085h), then per 605Ah
+
+
+def heartbeat_consumer_entry(node_id: int, time_ms: int) -> int:
+    """A 1016h entry: ``node_id`` watched with ``time_ms`` (1..65535; 0 switches it off)."""
+    if not 0 <= time_ms <= 0xFFFF:
+        raise ValueError(f"consumer heartbeat time {time_ms} ms: allowed 0..65535")
+    return (_node(node_id) << 16) | time_ms
+
+
+def split_heartbeat_consumer_entry(entry: int) -> tuple[int, int]:
+    """(node-ID, time in ms) of a 1016h entry (node-ID 0 or time 0: the entry is unused)."""
+    return (entry >> 16) & 0xFF, entry & 0xFFFF
+
+
+def consumer_time_ms(producer_ms: int) -> int:
+    """The consumer time that watches a producer of ``producer_ms``: the margin, rounded up."""
+    return min(0xFFFF, math.ceil(producer_ms * HEARTBEAT_CONSUMER_MARGIN))
+
+
+#: The contract's drive (1018h vendor 0, product 402h; plant_sim.drive) has a set-point
+#: watchdog: SYNCs in Operation enabled without an RPDO before 6007h acts (UNSIGNED8, 0 off).
+CONTRACT_SETPOINT_TIMEOUT = (0x2102, 0)
+
+
+# --- EMCY error codes (CiA 301 table 21) that say a connection was lost -------------------------
+#: Communication, generic: the drive left NMT Operational while enabled (6007h acted).
+EMCY_COMMUNICATION = 0x8100
+#: Life guard error or heartbeat error: the consumer missed the master's heartbeat (6007h).
+EMCY_HEARTBEAT = 0x8130
 
 
 # --- CiA 402 controlword / statusword bits -----------------------------------------------------

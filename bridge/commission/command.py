@@ -40,6 +40,7 @@ from cmdline import cli
 from virtual_bus import BusConfig, open_bus
 from virtual_bus.atomic import write_atomic
 from virtual_bus.contract import SdoAbort
+from virtual_bus.formats.eds import check_eds_file
 from virtual_bus.shipped import DRIVE_EDS
 
 from .. import od as bridge_od
@@ -129,8 +130,11 @@ def connect(args: argparse.Namespace) -> Iterator[canopen.Network]:
 
 
 def load_eds(path: Path, node_id: int) -> canopen.ObjectDictionary:
+    """The node's EDS or DCF; a file that is not one is refused in one line before any bus
+    is opened (virtual_bus.formats.eds)."""
     if not path.is_file():
         raise CommissionInputError(f"--eds {path}: no such file")
+    check_eds_file(path)
     try:
         return canopen.import_od(str(path), node_id)
     except Exception as exc:  # configparser and canopen raise assorted types

@@ -32,11 +32,10 @@ from canopen import objectdictionary as cod
 from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo import SdoAbortedError
 
-from virtual_bus.contract import INT16_MAX as INT16_MAX
-from virtual_bus.contract import INT16_MIN as INT16_MIN
-from virtual_bus.contract import INT32_MAX as INT32_MAX
-from virtual_bus.contract import INT32_MIN as INT32_MIN
 from virtual_bus.contract import (
+    ABORT_CONNECTION_INDEX,
+    HEARTBEAT_CONSUMER_INDEX,
+    HEARTBEAT_PRODUCER_INDEX,
     LOAD_INCREMENTS_PER_M,
     LOAD_INCREMENTS_PER_RAD,
     MNM_PER_NM,
@@ -44,6 +43,10 @@ from virtual_bus.contract import (
     PERMILLE,
     SdoAbort,
 )
+from virtual_bus.contract import INT16_MAX as INT16_MAX
+from virtual_bus.contract import INT16_MIN as INT16_MIN
+from virtual_bus.contract import INT32_MAX as INT32_MAX
+from virtual_bus.contract import INT32_MIN as INT32_MIN
 from virtual_bus.contract import MODE_CSV as MODE_CSV
 from virtual_bus.formats.axis import AxisKind
 from virtual_bus.shipped import DRIVE_EDS
@@ -56,7 +59,9 @@ ObjectKey = tuple[int, int]
 DEVICE_TYPE: ObjectKey = (0x1000, 0)
 ERROR_REGISTER: ObjectKey = (0x1001, 0)
 COB_ID_SYNC: ObjectKey = (0x1005, 0)
-HEARTBEAT_TIME: ObjectKey = (0x1017, 0)
+#: the one heartbeat consumer entry (1016h:01): the master the drive watches
+HEARTBEAT_CONSUMER: ObjectKey = (HEARTBEAT_CONSUMER_INDEX, 1)
+HEARTBEAT_TIME: ObjectKey = (HEARTBEAT_PRODUCER_INDEX, 0)
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
 PDO_CHANNELS = 4
 PDO_MAP_ENTRIES = 8
@@ -69,7 +74,7 @@ LOAD_MINUS_MOTOR: ObjectKey = (0x2104, 0)
 #: 2105h:01..07 refused frames by kind (virtual_bus.frame_guard.FrameFault values)
 FRAME_COUNTERS = 0x2105
 # --- CiA 402 --------------------------------------------------------------------------------
-ABORT_CONNECTION_OPTION: ObjectKey = (0x6007, 0)
+ABORT_CONNECTION_OPTION: ObjectKey = (ABORT_CONNECTION_INDEX, 0)
 ERROR_CODE: ObjectKey = (0x603F, 0)
 CONTROLWORD: ObjectKey = (0x6040, 0)
 STATUSWORD: ObjectKey = (0x6041, 0)
@@ -188,6 +193,8 @@ def _known_objects() -> dict[ObjectKey, ObjectSpec]:
         ERROR_REGISTER: (u8, ro),
         COB_ID_SYNC: (u32, rw),
         (0x1008, 0): (cod.VISIBLE_STRING, const),
+        (HEARTBEAT_CONSUMER_INDEX, 0): (u8, const),
+        HEARTBEAT_CONSUMER: (u32, rw),
         HEARTBEAT_TIME: (u16, rw),
         (0x1018, 0): (u8, const),
         **{(0x1018, s): (u32, ro) for s in range(1, 5)},
