@@ -206,8 +206,13 @@ class Bridge:
         busy_poll: bool = False,
         compiled: bool | None = None,
         cpu: Callable[[], float] = time.thread_time,
+        wall_heartbeat: bool = True,
     ) -> None:
         self.config = config
+        #: False: every node watching the bridge runs on the loop's simulated time (an
+        #: in-process drive in lockstep), so the heartbeat follows that time only and a
+        #: recording is the same frame for frame whatever the host's speed
+        self.wall_heartbeat = wall_heartbeat
         self.pacer = pacer
         self.recorder = recorder
         self.bus_log = bus_log
@@ -376,7 +381,7 @@ class Bridge:
     def serving(self) -> Iterator[None]:
         """Feed received frames to canopen from a thread (SDO client/server while not
         cycling; the heartbeat on the wall clock); the thread ends when the block ends."""
-        idle = lambda: self.nmt.tick(self._wall())  # noqa: E731
+        idle = (lambda: self.nmt.tick(self._wall())) if self.wall_heartbeat else None
         with pumping(self.port.recv, self.dispatch, "bridge-service", idle):
             yield
 
@@ -739,7 +744,7 @@ class Bridge:
         # in lockstep on the simulated time and the wall clock, whichever is due first (a
         # drive watches on SYNC time or on its own clock, bridge.nmt)
         if self._lockstep:
-            self.nmt.tick(now_s, wall())
+            self.nmt.tick(now_s, wall() if self.wall_heartbeat else None)
         else:
             self.nmt.tick(wall())
         self._k = k + 1
