@@ -1,7 +1,8 @@
 """Mutated drive profiles, DCF files and axis files (``tests/mutations/``) through the
 bridge's readers and command line (issue 20, bad files).
 
-``load_profile`` and ``read_dcf`` accept each mutant or refuse it with their errors (:class:`DriveProfileError`, :class:`BridgeError`)
+``load_profile`` and ``read_dcf`` accept each mutant or refuse it with their errors
+(:class:`DriveProfileError`, :class:`BridgeError`)
 in one line naming the file and the key or section; never a builtin error; what
 docs/commissioning.md and CiA 306 call invalid is refused. The DCF files are the ones
 ``python -m bridge config dump`` writes of the bridge and of the simulated drive. Accepted axis
