@@ -35,7 +35,7 @@ from enum import Enum
 
 from canopen.nmt import NmtError
 
-from virtual_bus.contract import NmtCommand
+from virtual_bus.contract import Cia402, NmtCommand
 
 from .cycle import CW_STOPPED, Drive402State, drive_state
 from .errors import DriveSetupError
@@ -183,12 +183,12 @@ def _halt_by_sdo(
             state = drive_state(master.statusword())
             reads += 1
             if state in DRIVING:
-                master.write(0x6040, 0, struct.pack("<H", CW_STOPPED), " (quick stop)")
+                master.write(Cia402.CONTROLWORD, 0, struct.pack("<H", CW_STOPPED), " (quick stop)")
             deadline = wall() + sdo_s
             while True:
                 bridge.keep_clock()  # SYNC and the stop RPDO: a SYNC-clocked drive ramps on
                 state = drive_state(master.statusword())
-                raw = master.read(0x606C, 0, " (velocity actual)")
+                raw = master.read(Cia402.VELOCITY_ACTUAL_VALUE, 0, " (velocity actual)")
                 reads += 2
                 speed = struct.unpack("<i", raw[:4])[0] / bridge.scaling.velocity_units_per_rad_s
                 if state not in DRIVING and abs(speed) <= STANDSTILL_RAD_S:

@@ -52,6 +52,7 @@ from virtual_bus.contract import (
     sdo_rx_cob_id,
 )
 from virtual_bus.formats.axis import AxisKind
+from virtual_bus.formats.drive_profile import DriveProfile
 from virtual_bus.frame_guard import FrameFault, FrameGuard
 from virtual_bus.framing import (
     NOTHING,
@@ -72,7 +73,6 @@ from .nmt import BridgeNmt
 from .objects import ObjectServer, PdoCounters
 from .od import DEFAULT_DRIVE_ID, DEFAULT_EDS_PATH, DEFAULT_NODE_ID, load_od
 from .params import BridgeParams
-from .profile import DriveProfile
 from .recorder import BusLog, TraceRecorder
 from .scaling import Scaling
 from .store import ParameterStore
@@ -149,7 +149,8 @@ class BridgeConfig:
     """Identity of the bridge on the bus, how it starts the drive, where it stores its
     parameters (1010h; loaded when the bridge is built, over the given params).
 
-    profile: the drive profile (:mod:`bridge.profile`, ``--drive-profile``); ``None``: the
+    profile: the drive profile (:mod:`virtual_bus.formats.drive_profile`,
+    ``--drive-profile``); ``None``: the
     start-up adapts to what the drive reports, with the contract's scaling as the default.
     """
 

@@ -37,12 +37,23 @@ from virtual_bus import BusConfig, open_bus
 from virtual_bus.atomic import write_atomic
 from virtual_bus.contract import (
     ABORT_CONNECTION_INDEX,
+    MANUFACTURER_AREA,
     TPDO_MAPPING_BASE,
+    Cia301,
+    Cia402,
     NmtCommand,
     pdo_comm_index,
     pdo_mapping_index,
 )
 from virtual_bus.formats.axis import AxisKind
+from virtual_bus.formats.drive_profile import (
+    DriveProfile,
+    LoadSource,
+    ModeChoice,
+    ObjectKey,
+    format_key,
+    render_profile,
+)
 from virtual_bus.formats.eds import check_eds_file
 
 from . import candidates as cand
@@ -59,7 +70,6 @@ from .layout import check_node_id
 from .master import DriveMaster, DriveSetup
 from .node import pumping
 from .od import DEFAULT_HEARTBEAT_MS, DEFAULT_NODE_ID
-from .profile import DriveProfile, LoadSource, ModeChoice, ObjectKey, format_key, render_profile
 from .scaling import LOAD_INCREMENTS_PER_UNIT
 from .supervision import Supervision, consumer_entries, plan_supervision
 
@@ -109,14 +119,14 @@ def mappable_from_eds(path: Path, node_id: int) -> frozenset[ObjectKey]:
     """The bridge's candidate objects and the drive's manufacturer INTEGER32/UNSIGNED32
     objects (candidates for a vendor load position) that the EDS marks PDO-mappable."""
     od = import_eds(path, node_id)
-    wanted = set(CANDIDATES) | {(0x60E4, s) for s in range(0xFF)}
+    wanted = set(CANDIDATES) | {(Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, s) for s in range(0xFF)}
     found: set[ObjectKey] = set()
     for index in od:
         obj = od[index]
         variables = [obj] if isinstance(obj, ODVariable) else [obj[s] for s in obj]
         for var in variables:
             key = (var.index, var.subindex)
-            vendor = 0x2000 <= var.index <= 0x5FFF and len(var) == 32
+            vendor = var.index in MANUFACTURER_AREA and len(var) == 32
             if var.pdo_mappable and (key in wanted or vendor):
                 found.add(key)
     return frozenset(found)
@@ -150,7 +160,7 @@ def profile_from_facts(
         position = None
     entries = [p.entries for p in facts.tpdos if p.entries]
     rpdos = [p.number for p in facts.rpdos]
-    rated = None if facts.u32((0x6076, 0)) else 0
+    rated = None if facts.u32((Cia402.MOTOR_RATED_TORQUE, 0)) else 0
     has_6007 = facts.has((ABORT_CONNECTION_INDEX, 0))
     return DriveProfile(
         name=name,
@@ -203,11 +213,14 @@ def describe(facts: DriveFacts) -> str:
         )
     present = ", ".join(format_key(k) for k in sorted(facts.objects))
     lines.append(f"objects present: {present}")
-    for index, name in ((0x608F, "position encoder resolution"), (0x6091, "gear ratio")):
+    for index, name in (
+        (Cia402.POSITION_ENCODER_RESOLUTION, "position encoder resolution"),
+        (Cia402.GEAR_RATIO, "gear ratio"),
+    ):
         ratio = facts.ratio(index)
         if ratio is not None:
             lines.append(f"{index:04X}h {name}: {ratio[0]} / {ratio[1]}")
-    rated = facts.u32((0x6076, 0))
+    rated = facts.u32((Cia402.MOTOR_RATED_TORQUE, 0))
     lines.append(
         "6076h motor rated torque: "
         + (f"{rated} mN·m" if rated else "0 or absent (torque shown in per mille)")
@@ -229,14 +242,14 @@ SCAN_TIMEOUT_S = 0.05
 
 def _more_60e4(master: DriveMaster, facts: DriveFacts) -> DriveFacts:
     """60E4h sub-indices 02h.. the drive has (an array's sub-index 0 counts them)."""
-    sub0 = facts.objects.get((0x60E4, 0))
+    sub0 = facts.objects.get((Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 0))
     if sub0 is None or len(sub0) != 1 or sub0[0] < 2:
         return facts
     objects = dict(facts.objects)
     for sub in range(2, min(sub0[0], 8) + 1):
-        raw = master.try_read(0x60E4, sub)
+        raw = master.try_read(Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, sub)
         if raw is not None:
-            objects[(0x60E4, sub)] = raw
+            objects[(Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, sub)] = raw
     return replace(facts, objects=objects)
 
 
@@ -247,7 +260,7 @@ def _is_encoder(network: canopen.Network, node_id: int, setup: DriveSetup) -> bo
     try:
         master = DriveMaster(node, replace(setup, sdo_timeout_s=SCAN_TIMEOUT_S, sdo_retries=1))
         with contextlib.suppress(DriveSetupError):
-            raw = master.try_read(0x1000, 0)
+            raw = master.try_read(Cia301.DEVICE_TYPE, 0)
             return raw is not None and len(raw) >= 2 and int.from_bytes(raw[:2], "little") == 406
         return False
     finally:

@@ -37,10 +37,10 @@ from virtual_bus.contract import (
     heartbeat_consumer_entry,
     split_heartbeat_consumer_entry,
 )
+from virtual_bus.formats.drive_profile import OBJECT_TYPES, DriveProfile, ObjectKey, format_key
 
 from .adapt import DriveFacts
 from .errors import DriveSetupError
-from .profile import OBJECT_TYPES, DriveProfile, ObjectKey, format_key
 
 #: 6007h of the start-up unless the drive profile says otherwise.
 DEFAULT_ABORT_CONNECTION = AbortConnection.QUICK_STOP

@@ -10,7 +10,8 @@ start-up falls back to the contract's layout (docs/canopen_layout.md: TPDO1 6064
 TPDO2 6041h + 6077h + 606Ch, RPDO1 6040h + 60FFh).
 
 Scaling (:class:`CandumpLayout`): the contract's by default, or a drive profile's
-(``--drive-profile``, ``bridge/profile.py``): 6064h increments per motor revolution, 606Ch /
+(``--drive-profile``, ``virtual_bus/formats/drive_profile.py``): 6064h increments per motor
+revolution, 606Ch /
 60FFh units per revolution per second, load increments per load unit, the rated torque
 (6076h, else the start-up's SDO answer for 6076h in the log, else torque in ‰).
 
@@ -43,6 +44,8 @@ from virtual_bus.contract import (
     RPDO_COMM_BASE,
     SDO_RX_BASE,
     SYNC_COB_ID,
+    Cia402,
+    Cia406,
     pdo_comm_index,
     pdo_mapping_index,
     pdo_of_cob_id,
@@ -52,18 +55,23 @@ from virtual_bus.contract import (
     tpdo_cob_id,
 )
 from virtual_bus.formats.axis import AxisKind
+from virtual_bus.formats.drive_profile import load_profile
 from virtual_bus.formats.errors import TornTailWarning
 
 from .chunks import CHUNK_ROWS, Chunk, checked, first_line
 from .errors import RecordingError
 
-MOTOR_POSITION = (0x6064, 0)
-TORQUE = (0x6077, 0)
-MOTOR_VELOCITY = (0x606C, 0)
-TARGET_VELOCITY = (0x60FF, 0)
-STATUSWORD = (0x6041, 0)
+MOTOR_POSITION = (Cia402.POSITION_ACTUAL_VALUE, 0)
+TORQUE = (Cia402.TORQUE_ACTUAL_VALUE, 0)
+MOTOR_VELOCITY = (Cia402.VELOCITY_ACTUAL_VALUE, 0)
+TARGET_VELOCITY = (Cia402.TARGET_VELOCITY, 0)
+STATUSWORD = (Cia402.STATUSWORD, 0)
 #: Load measuring systems in the order the bridge prefers them (bridge/adapt.py).
-LOAD_OBJECTS = ((0x60E4, 1), (0x60E4, 0), (0x6004, 0))
+LOAD_OBJECTS = (
+    (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 1),
+    (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 0),
+    (Cia406.POSITION_VALUE, 0),
+)
 ObjectKey = tuple[int, int]
 
 
@@ -101,8 +109,6 @@ def layout_for(kind: AxisKind, profile_path: Path | None = None) -> CandumpLayou
     load = 1e9 if kind is AxisKind.LINEAR else 1e6  # nm per m, µrad per rad (60E4h:01)
     if profile_path is None:
         return CandumpLayout(load_increments_per_unit=load)
-    from bridge.profile import load_profile  # the bridge owns the profile format
-
     p = load_profile(profile_path)
     rated = None if p.rated_torque_mnm is None else p.rated_torque_mnm / 1000.0
     return CandumpLayout(
@@ -209,10 +215,15 @@ def _contract(drive: int) -> tuple[dict[int, tuple[_Field, ...]], dict[int, tupl
         return _Field(key, offset, size, key != STATUSWORD)
 
     tpdos = {
-        tpdo_cob_id(1, drive): (f(MOTOR_POSITION, 0, 4), f((0x60E4, 1), 4, 4)),
+        tpdo_cob_id(1, drive): (
+            f(MOTOR_POSITION, 0, 4),
+            f((Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 1), 4, 4),
+        ),
         tpdo_cob_id(2, drive): (f(STATUSWORD, 0, 2), f(TORQUE, 2, 2), f(MOTOR_VELOCITY, 4, 4)),
     }
-    return tpdos, {rpdo_cob_id(1, drive): (f((0x6040, 0), 0, 2), f(TARGET_VELOCITY, 2, 4))}
+    return tpdos, {
+        rpdo_cob_id(1, drive): (f((Cia402.CONTROLWORD, 0), 0, 2), f(TARGET_VELOCITY, 2, 4))
+    }
 
 
 class Decoder:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from cmdline import cli
 from virtual_bus import BusConfig
+from virtual_bus.formats.drive_profile import load_profile
 from virtual_bus.realtime import add_realtime_options, realtime_options
 
 from .. import od as objdict
@@ -14,7 +15,6 @@ from ..errors import BridgeError, DriveSetupError
 from ..interpolator import Move, load_move_file, parse_move
 from ..master import DriveSetup
 from ..node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
-from ..profile import load_profile
 from ..timing import TimeMode
 from .common import add_clock_argument, default_store_path, regulated_axis
 

@@ -39,7 +39,7 @@ from canopen.objectdictionary import datatypes as dt
 from cmdline import cli
 from virtual_bus import BusConfig, open_bus
 from virtual_bus.atomic import write_atomic
-from virtual_bus.contract import SdoAbort
+from virtual_bus.contract import COMMUNICATION_AREA, Cia301, SdoAbort
 from virtual_bus.formats.eds import check_eds_file
 from virtual_bus.shipped import DRIVE_EDS
 
@@ -66,7 +66,7 @@ HELP = "read, write, dump (DCF) and load (DCF) any object of a node over SDO"
 KNOWN_EDS = (bridge_od.DEFAULT_EDS_PATH, DRIVE_EDS)
 READABLE = {"ro", "rw", "rwr", "rww", "const"}
 WRITABLE = {"rw", "rwr", "rww", "wo"}
-STORE_COMMANDS = {0x1010, 0x1011}
+STORE_COMMANDS = {Cia301.STORE_PARAMETERS, Cia301.RESTORE_DEFAULT_PARAMETERS}
 
 
 def _timeout(text: str) -> float:
@@ -160,18 +160,26 @@ def identify(network: canopen.Network, node_id: int, timeout_s: float) -> Path:
     product: int | None = None
     name: str | None = None
     try:
-        shown = int.from_bytes(access.read_raw(_u32_var(0x1000, 0, "Device type"))[:4], "little")
+        shown = int.from_bytes(
+            access.read_raw(_u32_var(Cia301.DEVICE_TYPE, 0, "Device type"))[:4], "little"
+        )
         with contextlib.suppress(NodeAccessError):
-            raw = access.read_raw(_u32_var(0x1018, 2, "Product code"))
+            raw = access.read_raw(_u32_var(Cia301.IDENTITY, 2, "Product code"))
             product = int.from_bytes(raw[:4], "little")
         with contextlib.suppress(NodeAccessError):
-            raw = access.read_raw(ODVariable("Manufacturer device name", 0x1008, 0))
+            raw = access.read_raw(
+                ODVariable("Manufacturer device name", Cia301.MANUFACTURER_DEVICE_NAME, 0)
+            )
             name = raw.decode("ascii", "replace")
     finally:
         del network[node_id]
     for path in KNOWN_EDS:
         od = load_eds(path, node_id)
-        wanted = (_default(od, 0x1000, 0), _default(od, 0x1018, 2), _default(od, 0x1008, 0))
+        wanted = (
+            _default(od, Cia301.DEVICE_TYPE, 0),
+            _default(od, Cia301.IDENTITY, 2),
+            _default(od, Cia301.MANUFACTURER_DEVICE_NAME, 0),
+        )
         if wanted == (shown, product, name):
             return path
     product_text = "none" if product is None else f"0x{product:08X}"
@@ -263,7 +271,7 @@ def _dump(args: argparse.Namespace) -> int:
         no_data: list[NodeAccessError] = []
         for var in variables(od):
             # 0001h-0FFFh are data type definitions (an EDS's [DummyUsage]), not parameters
-            if var.access_type not in READABLE or var.index < 0x1000:
+            if var.access_type not in READABLE or var.index < COMMUNICATION_AREA.start:
                 continue
             try:
                 value = access.read(var)
@@ -275,7 +283,7 @@ def _dump(args: argparse.Namespace) -> int:
                 continue
             count += 1
             values[key_of(var, od)] = value_text(var, value)
-            if (var.index, var.subindex) == (0x1018, 4):
+            if (var.index, var.subindex) == (Cia301.IDENTITY, 4):
                 serial = int(value)
         info = od.device_information
         commissioning = Commissioning(
@@ -343,7 +351,7 @@ def _rollback(
 
 def _load(args: argparse.Namespace) -> int:
     with open_node(args) as (access, od):
-        if args.save and not _has(od, 0x1010, 1):
+        if args.save and not _has(od, Cia301.STORE_PARAMETERS, 1):
             raise CommissionInputError(
                 f"--save: node {args.node_id}'s EDS has no 1010h:01 (store parameters)"
             )
@@ -395,7 +403,7 @@ def _load(args: argparse.Namespace) -> int:
             + ")"
         )
         if args.save:
-            access.write(od[0x1010][1], SIGNATURES["save"])
+            access.write(od[Cia301.STORE_PARAMETERS][1], SIGNATURES["save"])
             print(f"node {args.node_id}: stored (1010h:01 = save)")
     return 0
 

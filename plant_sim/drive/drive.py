@@ -58,6 +58,7 @@ from virtual_bus.contract import (
     CAN_ID_MASK,
     COB_ID_INVALID,
     COB_ID_NO_RTR,
+    COMMUNICATION_AREA,
     EMCY_COMMUNICATION,
     EMCY_HEARTBEAT,
     HEARTBEAT_BASE,
@@ -815,7 +816,7 @@ class SimulatedDrive:
         if command is NmtCommand.RESET_NODE:
             self._table.restore_defaults(0x2000, 0x9FFF, keep=(O.DISTURBANCE,))
             self._servo.reset_application()
-        self._table.restore_defaults(0x1000, 0x1FFF)
+        self._table.restore_defaults(COMMUNICATION_AREA.start, COMMUNICATION_AREA.stop - 1)
         if self._started:
             self._unsubscribe_sync()
             self._subscribe_sync()

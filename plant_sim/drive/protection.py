@@ -42,16 +42,19 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from virtual_bus.contract import EMCY_COMMUNICATION, EMCY_HEARTBEAT, split_heartbeat_consumer_entry
+from virtual_bus.contract import (
+    EMCY_COMMUNICATION,
+    EMCY_HEARTBEAT,
+    EMCY_NO_ERROR,
+    EMCY_PDO_LENGTH,
+    EMCY_RPDO_TIMEOUT,
+    EMCY_SENSOR,
+    EMCY_SOFTWARE,
+    EMCY_SYNC_LENGTH,
+    split_heartbeat_consumer_entry,
+)
 
 from ..plant import Plant
-
-EMCY_NO_ERROR = 0x0000
-EMCY_SOFTWARE = 0x6100  # internal software: the plant (an FMU) failed while it stepped
-EMCY_SENSOR = 0x7300
-EMCY_PDO_LENGTH = 0x8210
-EMCY_SYNC_LENGTH = 0x8240
-EMCY_RPDO_TIMEOUT = 0x8250
 
 ERROR_REGISTER_GENERIC = 0x01
 ERROR_REGISTER_COMMUNICATION = 0x10

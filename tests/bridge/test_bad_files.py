@@ -1,7 +1,8 @@
 """Mutated drive profiles, DCF files and axis files (``tests/mutations/``) through the
 bridge's readers and command line (issue 20, bad files).
 
-``load_profile`` and ``read_dcf`` accept each mutant or refuse it with a :class:`BridgeError`
+``load_profile`` and ``read_dcf`` accept each mutant or refuse it with their errors
+(:class:`DriveProfileError`, :class:`BridgeError`)
 in one line naming the file and the key or section; never a builtin error; what
 docs/commissioning.md and CiA 306 call invalid is refused. The DCF files are the ones
 ``python -m bridge config dump`` writes of the bridge and of the simulated drive. Accepted axis
@@ -22,13 +23,13 @@ from bridge.__main__ import main
 from bridge.commission.dcf import read_dcf
 from bridge.errors import BridgeError
 from bridge.params import BridgeParams
-from bridge.profile import load_profile
 from plant_sim.drive.od import DEFAULT_EDS_PATH as DRIVE_EDS
 from regulator.errors import RegulatorError
 from tests import mutations
 from tests.bridge.test_config_command import Nodes, nodes, run, writable_snapshot
 from virtual_bus.formats.axis import load_axis
-from virtual_bus.formats.errors import FormatError
+from virtual_bus.formats.drive_profile import load_profile
+from virtual_bus.formats.errors import DriveProfileError, FormatError
 from virtual_bus.shipped import PAPER_AXIS
 
 __all__ = ["nodes"]  # the fixture: a bridge and a simulated drive on one bus
@@ -48,7 +49,7 @@ def _sample(mutants: list[mutations.Mutant], k: int, seed: int) -> list[mutation
 def test_drive_profile_mutants_are_accepted_or_refused_in_one_line(tmp_path: Path) -> None:
     mutants = mutations.profile_mutants()
     assert len(mutants) > 400
-    findings = mutations.load_each(mutants, tmp_path, ".toml", load_profile, (BridgeError,))
+    findings = mutations.load_each(mutants, tmp_path, ".toml", load_profile, (DriveProfileError,))
     _assert_clean(findings)
 
 
@@ -97,7 +98,7 @@ def test_a_sample_of_axis_files_and_profiles_through_the_command_line(tmp_path: 
         mutations.axis_mutants(), tmp_path, ".toml", load_axis, (FormatError,)
     )
     profiles = mutations.load_each(
-        mutations.profile_mutants(), tmp_path, ".toml", load_profile, (BridgeError,)
+        mutations.profile_mutants(), tmp_path, ".toml", load_profile, (DriveProfileError,)
     )
     run_args = ["run", "--interface", "virtual", "--channel", "nobody", "--seconds", "0.01"]
     for m in _sample(list(axes.refused), 20, 6) + _sample(list(axes.accepted), 6, 7):

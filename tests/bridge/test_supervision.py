@@ -27,7 +27,6 @@ from bridge.halt import HaltWay, halt
 from bridge.interpolator import Move
 from bridge.node import Bridge
 from bridge.params import BridgeParams
-from bridge.profile import DriveProfile, load_profile
 from bridge.timing import LockstepPacer
 from hil.harness import simulated_axis
 from plant_sim.drive import DriveConfig, State402, TimeMode
@@ -35,6 +34,7 @@ from plant_sim.drive.process import DriveProcessConfig, serve
 from tests.adapt_helpers import FAULHABER_CO_EDS, TECHNOSOFT_EDS, YIYOU_EDS, local_rig
 from tests.bridge_helpers import AXIS, controller
 from tests.paths import ROOT
+from virtual_bus.formats.drive_profile import DriveProfile, load_profile
 
 SIM_EDS = ROOT / "config" / "drive.eds"
 BRIDGE_ENTRY = (1 << 16) | 250  # node 1, 250 ms: 2.5 x the bridge's 100 ms heartbeat
@@ -118,10 +118,10 @@ def test_a_late_pre_operational_heartbeat_of_the_start_up_does_not_stop_the_axis
     c = controller()
     c.restart_supervision()
     c.on_heartbeat(0x7F, 0.0)  # sent before it took the NMT start, read late
-    assert c._heartbeat_state == 0x05
+    assert c.drive_watch.state == 0x05
     c.on_heartbeat(0x05, 0.1)
     c.on_heartbeat(0x7F, 0.2)
-    assert c._heartbeat_state == 0x7F  # supervised now: the next cycle stops the axis
+    assert c.drive_watch.state == 0x7F  # supervised now: the next cycle stops the axis
 
 
 def test_enabling_enters_running_only_on_a_cycle_with_every_frame() -> None:

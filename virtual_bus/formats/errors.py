@@ -31,6 +31,16 @@ class TraceFileError(FormatError, ValueError):
         self.row = row
 
 
+class DriveProfileError(FormatError, ValueError):
+    """A drive profile (``config/drives/*.toml``, docs/commissioning.md) is unreadable or has
+    a bad key (``path``, ``key`` attributes)."""
+
+    def __init__(self, message: str, *, path: str = "", key: str = "") -> None:
+        super().__init__(message)
+        self.path = path
+        self.key = key
+
+
 class TraceWarning(UserWarning):
     """A trace column looks implausible for its unit (never rescaled silently)."""
 

@@ -5,7 +5,7 @@ Every key is optional; what a profile leaves out the start-up reads from the dri
 1018h, 6502h, 608Fh, 6091h, 6092h, 6076h, the PDO objects) or takes from the contract
 (docs/canopen_layout.md). ``python -m bridge probe --out`` writes one from a connected drive.
 
-:func:`load_profile` validates the file; a bad one raises :class:`ProfileError` (exit 2 in
+:func:`load_profile` validates the file; a bad one raises :class:`DriveProfileError` (exit 2 in
 the CLI) with one line naming the key, the value and what is allowed.
 """
 
@@ -17,18 +17,11 @@ from dataclasses import dataclass, fields
 from enum import Enum
 from pathlib import Path
 
-from .errors import BridgeConfigError
+from virtual_bus.contract import COMMUNICATION_AREA
+
+from .errors import DriveProfileError
 
 ObjectKey = tuple[int, int]
-
-
-class ProfileError(BridgeConfigError):
-    """A drive profile file is unreadable or has a bad key (``path``, ``key`` attributes)."""
-
-    def __init__(self, message: str, *, path: str = "", key: str = "") -> None:
-        super().__init__(message)
-        self.path = path
-        self.key = key
 
 
 class ModeChoice(Enum):
@@ -73,7 +66,7 @@ def parse_key(text: object, where: str = "object") -> ObjectKey:
         key = (int(index, 16), int(sub, 16))
     except ValueError:
         raise ValueError(f'{where} = {text!r}: write an object as "IIIIh:SS" (hex)') from None
-    if not (0x1000 <= key[0] <= 0xFFFF and 0 <= key[1] <= 0xFE):
+    if not (COMMUNICATION_AREA.start <= key[0] <= 0xFFFF and 0 <= key[1] <= 0xFE):
         raise ValueError(f"{where} = {text!r}: index 1000h..FFFFh, sub-index 00h..FEh")
     return key
 
@@ -136,8 +129,8 @@ class DriveProfile:
     setpoint_timeout_type: str = "u8"
 
     def __post_init__(self) -> None:
-        def bad(key: str, allowed: str) -> ProfileError:
-            return ProfileError(f"{key} = {getattr(self, key)!r}: {allowed}", key=key)
+        def bad(key: str, allowed: str) -> DriveProfileError:
+            return DriveProfileError(f"{key} = {getattr(self, key)!r}: {allowed}", key=key)
 
         def is_int(v: object) -> bool:
             return isinstance(v, int) and not isinstance(v, bool)
@@ -292,19 +285,19 @@ def _convert(name: str, value: object, where: str) -> object:
 
 
 def load_profile(path: str | Path) -> DriveProfile:
-    """Read and validate a drive profile (:class:`ProfileError`, one line, on any fault)."""
+    """Read and validate a drive profile (:class:`DriveProfileError`, one line, on any fault)."""
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark is no key
     except OSError as exc:
-        raise ProfileError(f"{path}: cannot read ({exc.strerror})", path=str(path)) from None
+        raise DriveProfileError(f"{path}: cannot read ({exc.strerror})", path=str(path)) from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ProfileError(f"{path}: not valid TOML ({exc})", path=str(path)) from None
+        raise DriveProfileError(f"{path}: not valid TOML ({exc})", path=str(path)) from None
     values: dict[str, object] = {}
     for table, body in data.items():
         names = _LAYOUT.get(table)
         if names is None or not isinstance(body, dict):
-            raise ProfileError(
+            raise DriveProfileError(
                 f"{path}: [{table}]: unknown table; allowed {sorted(_LAYOUT)}",
                 path=str(path),
                 key=table,
@@ -314,7 +307,7 @@ def load_profile(path: str | Path) -> DriveProfile:
             where = f"{table}.{key}"
             name = by_toml.get(key)
             if name is None:
-                raise ProfileError(
+                raise DriveProfileError(
                     f"{path}: {where}: unknown key; allowed {sorted(by_toml)}",
                     path=str(path),
                     key=where,
@@ -322,13 +315,13 @@ def load_profile(path: str | Path) -> DriveProfile:
             try:
                 values[name] = _convert(name, value, where)
             except ValueError as exc:
-                raise ProfileError(f"{path}: {exc}", path=str(path), key=where) from None
+                raise DriveProfileError(f"{path}: {exc}", path=str(path), key=where) from None
     try:
         return DriveProfile(**values)  # type: ignore[arg-type]
-    except ProfileError as exc:
+    except DriveProfileError as exc:
         table = next(t for t, names in _LAYOUT.items() if exc.key in names)
         key = f"{table}.{_TOML_NAME.get(exc.key, exc.key)}"
-        raise ProfileError(f"{path}: {key}: {exc}", path=str(path), key=key) from None
+        raise DriveProfileError(f"{path}: {key}: {exc}", path=str(path), key=key) from None
 
 
 def _toml_value(name: str, value: object) -> str:
