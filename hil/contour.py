@@ -107,6 +107,7 @@ class ContourSetup:
     regulated: int = 0
     beta_t_rad_s: float | None = None
     path_accel: float = 1.0
+    compensation_cycles: int = 5
 
     def __post_init__(self) -> None:
         if len(self.sources) != 2 or len(self.kv) != 2:
@@ -225,7 +226,7 @@ def run_direction(
     if control is Control.COMPENSATION:
         for i, name in enumerate("XY"):
             b = (backlash or {}).get(name, 0.0)
-            comp = ReversalCompensation(b)
+            comp = ReversalCompensation(b, setup.compensation_cycles)
             kr = setup.sources[i].axis.transmission_ratio
             offsets[i] = comp.speed_offset(spd[i], kr, setup.cycle_s)
     plants = [s.plant(float(pos[i][0]), f"axis {'xy'[i]}") for i, s in enumerate(setup.sources)]
@@ -261,6 +262,16 @@ def run_direction(
     return path, run
 
 
+def check(
+    setup: ContourSetup, test: CircularTest, directions: Sequence[Direction] = tuple(Direction)
+) -> None:
+    """Plan every direction of ``test`` on the setup's axes: :class:`ContourError` (one line)
+    for a circle outside an axis's travel, a feed above an axis's speed or acceleration
+    limits -- before any plant is made or stepped."""
+    for d in directions:
+        plan(test.blocks(d), setup.axes.limits, PathLimits(setup.path_accel), setup.cycle_s)
+
+
 def circular_test(
     setup: ContourSetup,
     test: CircularTest,
@@ -272,6 +283,7 @@ def circular_test(
     ``compensation`` needs ``backlash`` (per axis "X"/"Y", load units: what a test measured)."""
     if control is Control.COMPENSATION and backlash is None:
         raise ContourError("backlash compensation needs the backlash a circular test measured")
+    check(setup, test, directions)
     done = [run_direction(setup, test, d, control, backlash) for d in directions]
     paths = tuple(p for p, _ in done)
     report = analyse(test, paths, windup_per_nm=setup.windup_per_nm())

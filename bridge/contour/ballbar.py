@@ -498,8 +498,8 @@ def _signatures(
     e = dict(zip(_NAMES, se, strict=True))
 
     def sig(name: str, value: float, unit: str, amp: float, err: float, text: str, can: bool):
-        named = can and abs(amp) > max(NAMING_FLOOR, NAMING_SIGMAS * err)
-        return Signature(name, value, unit, amp, err, named, text)
+        named = bool(can and abs(amp) > max(NAMING_FLOOR, NAMING_SIGMAS * err))
+        return Signature(name, float(value), unit, float(amp), float(err), named, text)
 
     offset = math.hypot(c["centre offset X"], c["centre offset Y"])
     offset_err = math.hypot(e["centre offset X"], e["centre offset Y"])

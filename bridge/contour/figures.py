@@ -45,23 +45,21 @@ def radial_deviation(test: CircularTest, path: MeasuredPath) -> tuple[np.ndarray
 
 
 def polar_figure(panels: Sequence[PolarPanel], path: Path, suptitle: str = "") -> None:
-    """One magnified polar plot per panel, side by side, all on the same scale (µm per
-    division), so that the panels compare at a glance."""
+    """One magnified polar plot per panel, side by side, each on its own scale (µm, on the
+    radial grid) so that each shape shows; the titles give each panel's G(b)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     um = 1e6
-    spans = [
-        float(np.max(np.abs(radial_deviation(p.test, q)[1]))) * um for p in panels for q in p.paths
-    ]
-    span = _nice(max([*spans, 1.0]))
-    base = 2.0 * span  # the nominal circle sits here; the centre is -2 spans
     cols = len(panels)
     fig = plt.figure(figsize=(4.2 * cols, 4.9))
     for i, panel in enumerate(panels, start=1):
         ax = fig.add_subplot(1, cols, i, projection="polar")
+        devs = [float(np.max(np.abs(radial_deviation(panel.test, q)[1]))) * um for q in panel.paths]
+        span = _nice(max([*devs, 1.0]))
+        base = 2.0 * span  # the nominal circle sits here; the centre is -2 spans
         grid = np.linspace(0, 2 * math.pi, 721)
         ax.plot(grid, np.full(grid.size, base), color="0.4", lw=0.8, ls="--")
         for p in panel.paths:

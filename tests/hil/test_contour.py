@@ -6,13 +6,18 @@ mismatch with the lag difference an analytic first-order loop gives (1/k_v)."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from bridge.contour import CircularTest
+from hil.__main__ import main
 from hil.contour import ContourSetup, Control, circular_test, compare
 from plant_sim.fmu import FmuSpec, nominal_axis
 from plant_sim.fmu.arguments import AxisSource
+from tests.command_line import refused_in_one_line
 from tests.plant_sim.fmu.fmus import family_fmu
 
 #: Held-out axes with free play (family 1) whose truth_backlash is 20-200 µm (the issue's
@@ -88,3 +93,46 @@ def test_four_controls_on_one_backlash_axis() -> None:
         return max(s.height for s in runs[control].report.spikes if s.axis == "X")
 
     assert x_spike(Control.COMPENSATION) < 0.8 * x_spike(Control.ORDINARY)
+
+
+def argv(tmp: Path, *extra: str) -> list[str]:
+    return [
+        "contour",
+        "--fmu",
+        str(family_fmu()),
+        "--x-param",
+        "seed=1008,family=1",
+        "--y-param",
+        "seed=1108,family=0",
+        "--out",
+        str(tmp / "out"),
+        *extra,
+    ]
+
+
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        (("--radius-mm", "2500"), "outside the travel limits of axis X"),
+        (("--y-travel-mm=-5,5",), "outside the travel limits of axis Y"),
+        (("--feed-mm-min", "100000"), "above its speed limit"),
+        (("--nodes", "3,3"), "node ID 3 given to axis X and axis Y"),
+        (("--nodes", "3,200"), "node-ID is 1..127"),
+        (("--kv-y-ratio", "9"), "allowed 0.2..5"),
+    ],
+)
+def test_bad_contours_are_refused_in_one_line_before_an_axis_moves(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: tuple[str, ...], words: str
+) -> None:
+    line = refused_in_one_line(main, argv(tmp_path, *extra), capsys)
+    assert words in line
+    assert not (tmp_path / "out").exists()  # nothing run, nothing written
+
+
+def test_the_command_writes_the_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(argv(tmp_path, "--direction", "ccw")) == 0
+    summary = json.loads((tmp_path / "out" / "report.json").read_text())
+    ordinary = summary["controls"]["ordinary"]
+    assert set(ordinary["circular_deviation_um"]) == {"ccw"}
+    assert ordinary["backlash_um"]["X"] > 20.0
+    assert "reversal spike at 0° (X reverses)" in capsys.readouterr().out
