@@ -228,7 +228,12 @@ def run_direction(
             b = (backlash or {}).get(name, 0.0)
             comp = ReversalCompensation(b, setup.compensation_cycles)
             kr = setup.sources[i].axis.transmission_ratio
-            offsets[i] = comp.speed_offset(spd[i], kr, setup.cycle_s)
+            # the axis reverses when its lagging position loop does, 1/k_v after its
+            # reference (eq. 7 without feed-forward: following error = speed / k_v)
+            ff = setup.sources[i].axis.control.velocity_feedforward or 0.0
+            lag = round((1.0 - ff) / (setup.kv[i] * setup.cycle_s))
+            shifted = np.concatenate((np.zeros(lag), spd[i][: spd[i].size - lag]))
+            offsets[i] = comp.speed_offset(shifted, kr, setup.cycle_s)
     plants = [s.plant(float(pos[i][0]), f"axis {'xy'[i]}") for i, s in enumerate(setup.sources)]
     try:
         run = play_axes(

@@ -16,7 +16,9 @@ machine datum: the circular test's lost motion measures it (:mod:`.ballbar`).
 
 The reversals are found on the reference alone (the interpolator's commanded speed, as a
 CNC triggers its compensation), never on measurements: an axis's first move from rest is not
-a reversal (where in the gap it stands is unknown).
+a reversal (where in the gap it stands is unknown). A loop without full velocity feed-forward
+reverses the axis later than its reference, by its lag ``(1 - k_ff) / k_v``: the reference
+given here is then the one delayed by that lag (:mod:`hil.contour` does so).
 """
 
 from __future__ import annotations
