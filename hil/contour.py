@@ -130,7 +130,7 @@ class ContourSetup:
         sources: Sequence[AxisSource],
         *,
         kv: Sequence[float] | None = None,
-        node_ids: tuple[int, int] = (1, 2),
+        node_ids: tuple[int, int] = (2, 3),
         travel: Sequence[tuple[float, float] | None] = (None, None),
         **kw: object,
     ) -> ContourSetup:

@@ -3,9 +3,10 @@ checked together before any axis moves.
 
 Two axes interpolating one contour share one bus and one SYNC (paper section II.A); their
 node IDs must differ (a second drive answering the same COB-IDs would corrupt both), each
-must be a CiA 301 node ID (1..127), and their names must differ (a program's X and Y words
-address them). The limits are :class:`.planner.AxisLimits` (travel, speed, acceleration),
-which :func:`.planner.plan` checks every block against.
+must be a CiA 301 node ID (1..127) other than the bridge's own (the SYNC producer and master,
+``bridge_node_id``, default :data:`bridge.od.DEFAULT_NODE_ID`), and their names must differ
+(a program's X and Y words address them). The limits are :class:`.planner.AxisLimits`
+(travel, speed, acceleration), which :func:`.planner.plan` checks every block against.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ..errors import ContourError
+from ..od import DEFAULT_NODE_ID
 from .planner import AxisLimits
 
 
@@ -41,6 +43,7 @@ class ContourAxes:
     """The axes of one contour (x first, then y), checked as a whole."""
 
     axes: tuple[ContourAxis, ...]
+    bridge_node_id: int = DEFAULT_NODE_ID
 
     def __post_init__(self) -> None:
         axes = tuple(self.axes)
@@ -49,6 +52,11 @@ class ContourAxes:
             raise ContourError(f"a planar contour has two axes, not {len(axes)}")
         seen: dict[int, str] = {}
         for a in axes:
+            if a.node_id == self.bridge_node_id:
+                raise ContourError(
+                    f"axis {a.name}: node ID {a.node_id} is the bridge's own; give its drive "
+                    f"another node ID (1..127 except {self.bridge_node_id})"
+                )
             if a.node_id in seen:
                 raise ContourError(
                     f"node ID {a.node_id} given to axis {seen[a.node_id]} and axis {a.name}: "

@@ -95,7 +95,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the regulator's threshold beta_T in rad/s (eq. 15; default the bridge's 2011h)",
     )
     parser.add_argument(
-        "--nodes", type=_nodes, default=(1, 2), metavar="X,Y", help="node IDs (default 1,2)"
+        "--nodes",
+        type=_nodes,
+        default=(2, 3),
+        metavar="X,Y",
+        help="the drives' node IDs (default 2,3; the bridge is node 1)",
     )
     parser.add_argument("--out", type=cli.output_dir, required=True, help="report directory")
     parser.add_argument("--figure", type=cli.new_file, help="also the polar plot here (PNG)")

@@ -121,6 +121,7 @@ def argv(tmp: Path, *extra: str) -> list[str]:
         (("--feed-mm-min", "100000"), "above its speed limit"),
         (("--nodes", "3,3"), "node ID 3 given to axis X and axis Y"),
         (("--nodes", "3,200"), "node-ID is 1..127"),
+        (("--nodes", "1,3"), "node ID 1 is the bridge's own"),
         (("--kv-y-ratio", "9"), "allowed 0.2..5"),
     ],
 )
@@ -139,3 +140,4 @@ def test_the_command_writes_the_report(tmp_path: Path, capsys: pytest.CaptureFix
     assert set(ordinary["circular_deviation_um"]) == {"ccw"}
     assert ordinary["backlash_um"]["X"] > 20.0
     assert "reversal spike at 0° (X reverses)" in capsys.readouterr().out
+    assert summary["axes"]["nodes"] == [2, 3]
