@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bridge.contour import CircularTest
+from bridge.contour import CircularTest, Direction, PathLimits, plan
 from hil.__main__ import main
 from hil.contour import ContourSetup, Control, circular_test, compare
 from plant_sim.fmu import FmuSpec, nominal_axis
 from plant_sim.fmu.arguments import AxisSource
+from regulator.loop import play, play_axes
 from tests.command_line import refused_in_one_line
 from tests.plant_sim.fmu.fmus import family_fmu
 
@@ -141,3 +142,24 @@ def test_the_command_writes_the_report(tmp_path: Path, capsys: pytest.CaptureFix
     assert ordinary["backlash_um"]["X"] > 20.0
     assert "reversal spike at 0° (X reverses)" in capsys.readouterr().out
     assert summary["axes"]["nodes"] == [2, 3]
+
+
+def test_play_axes_without_sharing_is_play_on_each_axis_bit_for_bit() -> None:
+    """The lockstep of two axes changes nothing of either axis's cycle: each axis's record
+    equals regulator.loop.play on that axis alone (the single-axis loop the bridge's proofs
+    use), sample for sample, the regulator on."""
+    x, y = source(1008, 1), source(1108, 0)
+    setup = ContourSetup.of([x, y])
+    ref = plan(TEST.blocks(Direction.CCW), setup.axes.limits, PathLimits(setup.path_accel), 1e-3)
+    pos = [ref.axis(i)[0] for i in range(2)]
+    spd = [ref.axis(i)[1] for i in range(2)]
+    plants = [s.plant(float(pos[i][0])) for i, s in enumerate((x, y))]
+    together = play_axes(plants, pos, spd, [setup.block(i, True) for i in range(2)])
+    for i, s in enumerate((x, y)):
+        with s.plant(float(pos[i][0])) as alone_plant:
+            alone = play(alone_plant, pos[i], spd[i], setup.block(i, True))
+        assert np.min(together[0]["lambda"]) < 0.5  # the regulator acted
+        for column in alone.samples:
+            assert np.array_equal(together[i][column], alone[column]), column
+    for p in plants:
+        p.close()
