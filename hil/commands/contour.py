@@ -4,20 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 from bridge.contour import CircularTest, Direction
 from bridge.contour.figures import PolarPanel, available, polar_figure
 from bridge.errors import ContourError
 from cmdline import cli
-from plant_sim.fmu import FmuSpec, nominal_axis
-from plant_sim.fmu.arguments import AxisSource
+from plant_sim.fmu.arguments import AxisSource, axis_source
 from virtual_bus.atomic import replacing
 
 NAME = "contour"
-HELP = "the circular test (ISO 230-4) on two simulated FMU axes, offline: a ballbar report"
+HELP = "the circular test (ISO 230-4) on two simulated axes, offline: a ballbar report"
 DESCRIPTION = (
-    "Two instances of an FMU (--x-param, --y-param) interpolate a circle through the "
+    "Two axes -- two instances of an FMU (--x-param, --y-param) or the compiled kernel of "
+    "two axis files (--x-axis, --y-axis) -- interpolate a circle through the "
     "bridge's position cycle (regulator.cycle, the one composition the bridge runs), in both "
     "directions; the report gives ISO 230-4's circular deviations and a ballbar's "
     "decomposition (reversal spikes, backlash per axis, servo and scale mismatch, "
@@ -51,13 +50,22 @@ def _nodes(text: str) -> tuple[int, int]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--fmu", type=cli.existing_file, required=True, help="the axis FMU")
+    parser.add_argument(
+        "--fmu",
+        type=cli.existing_file,
+        help="the axes' FMU (one instance per axis); without it the axis files' compiled kernel",
+    )
     for name in ("x", "y"):
         parser.add_argument(
             f"--{name}-param",
-            required=True,
             metavar="NAME=VALUE,...",
-            help=f"the {name.upper()} axis's FMU parameters, e.g. seed=1008,family=1",
+            help=f"with --fmu: the {name.upper()} axis's FMU parameters, e.g. seed=1008,family=1",
+        )
+        parser.add_argument(
+            f"--{name}-axis",
+            type=cli.existing_file,
+            metavar="AXIS.toml",
+            help=f"the {name.upper()} axis file (with --fmu default: its data sheet)",
         )
         parser.add_argument(
             f"--{name}-travel-mm",
@@ -105,16 +113,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--figure", type=cli.new_file, help="also the polar plot here (PNG)")
 
 
-def _source(fmu: Path, params: str, name: str) -> AxisSource:
-    spec = FmuSpec.from_text(fmu, params)
-    model = spec.load()
-    return AxisSource(nominal_axis(model), f"{name}: {spec.describe()}", spec, model)
+def _source(args: argparse.Namespace, name: str) -> AxisSource:
+    """One axis: an FMU instance (``--fmu`` with ``--NAME-param``, the data sheet or
+    ``--NAME-axis``) or the compiled kernel of ``--NAME-axis``."""
+    params = getattr(args, f"{name}_param")
+    axis_path = getattr(args, f"{name}_axis")
+    if args.fmu is None:
+        if params is not None:
+            raise cli.UsageError(f"--{name}-param needs --fmu FMU")
+        if axis_path is None:
+            raise cli.UsageError(f"give --{name}-axis AXIS.toml, or --fmu FMU --{name}-param ...")
+        return axis_source(argparse.Namespace(fmu=None, fmu_param=[], fmu_map=[]), axis_path)
+    if params is None:
+        raise cli.UsageError(f"--fmu needs --{name}-param NAME=VALUE,... (e.g. seed=1008,family=1)")
+    ns = argparse.Namespace(fmu=args.fmu, fmu_param=[params], fmu_map=[])
+    return axis_source(ns, axis_path)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..contour import ContourSetup, Control, check, circular_test, compare
 
-    sources = [_source(args.fmu, args.x_param, "X"), _source(args.fmu, args.y_param, "Y")]
+    sources = [_source(args, "x"), _source(args, "y")]
     setup0 = ContourSetup.of(sources, node_ids=args.nodes)
     kv = args.kv or setup0.kv[0]
     setup = ContourSetup.of(

@@ -19,7 +19,9 @@ from plant_sim.fmu import FmuSpec, nominal_axis
 from plant_sim.fmu.arguments import AxisSource
 from regulator.loop import play, play_axes
 from tests.command_line import refused_in_one_line
+from tests.paths import ROOT
 from tests.plant_sim.fmu.fmus import family_fmu
+from virtual_bus.formats.axis import load_axis
 
 #: Held-out axes with free play (family 1) whose truth_backlash is 20-200 µm (the issue's
 #: range; seeds 1000-1015 of family 1 with backlash in it), each beside a clean axis.
@@ -163,3 +165,34 @@ def test_play_axes_without_sharing_is_play_on_each_axis_bit_for_bit() -> None:
             assert np.array_equal(together[i][column], alone[column]), column
     for p in plants:
         p.close()
+
+
+def test_on_the_compiled_kernel_the_backlash_is_the_axis_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The same test on the kernel's axes (axis files, no FMU): X the paper's axis with its
+    free play, Y the same axis without; the estimate against the file's backlash."""
+    x_file = ROOT / "config" / "paper_axis.toml"
+    y_file = tmp_path / "no_backlash.toml"
+    text = x_file.read_text()
+    assert "\nbacklash = 0.0001 " in text
+    y_file.write_text(text.replace("\nbacklash = 0.0001 ", "\nbacklash = 0.0 "))
+    out = tmp_path / "out"
+    args = ["contour", "--x-axis", str(x_file), "--y-axis", str(y_file), "--out", str(out)]
+    assert main(args) == 0
+    report = json.loads((out / "report.json").read_text())["controls"]["ordinary"]
+    truth_um = load_axis(x_file).mechanics.backlash * 1e6
+    assert load_axis(y_file).mechanics.backlash == 0.0
+    assert report["backlash_um"]["X"] == pytest.approx(truth_um, rel=0.10)
+    assert report["backlash_um"]["Y"] < 0.1 * truth_um
+    assert "reversal spike at 0° (X reverses)" in capsys.readouterr().out
+
+
+def test_an_axis_needs_a_file_or_fmu_parameters(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    x_file = str(ROOT / "config" / "paper_axis.toml")
+    line = refused_in_one_line(
+        main, ["contour", "--x-axis", x_file, "--out", str(tmp_path)], capsys
+    )
+    assert "--y-axis" in line
