@@ -116,3 +116,34 @@ def test_planner_refuses_what_the_axes_cannot_do() -> None:
         plan(CircularTest(0.05, 0.6).blocks(Direction.CCW), LIMITS, PathLimits(1), 1e-3)
     with pytest.raises(ContourError, match="centripetal"):
         plan(CircularTest(0.01, 0.3).blocks(Direction.CCW), LIMITS, PathLimits(1), 1e-3)
+
+
+def test_a_program_with_corners_stops_at_each_and_keeps_every_limit() -> None:
+    """A square with a rounded corner, read from G-code: the path passes exactly through the
+    programmed points, stands still at every sharp corner (exact stop), runs the tangent
+    line-arc join without stopping, and no axis exceeds its speed or acceleration limit
+    (second differences of the samples; the jerk filter on)."""
+    from bridge.contour.program import parse_program
+
+    text = """
+    G01 X20 Y0 F3000
+    G03 X30 Y10 I0 J10
+    G01 X30 Y30
+    G01 X0 Y30
+    G01 X0 Y0
+    """
+    blocks = parse_program(text)
+    limits = [AxisLimits("X", -0.1, 0.1, 0.06, 0.8), AxisLimits("Y", -0.1, 0.1, 0.06, 0.8)]
+    T = 1e-3
+    ref = plan(blocks, limits, PathLimits(0.5, jerk=20.0), T)
+    pos, v = ref.position, ref.speed
+    for corner in ((0.03, 0.03), (0.0, 0.03)):  # sharp corners: at rest there
+        k = int(np.argmin(np.hypot(pos[:, 0] - corner[0], pos[:, 1] - corner[1])))
+        assert math.dist(pos[k], corner) < 1e-9
+        assert np.hypot(*v[k]) < 1e-4 and np.hypot(*v[k - 1]) < 1e-4  # 0.2 % of the feed
+    join = int(np.argmin(np.hypot(pos[:, 0] - 0.02, pos[:, 1])))  # line into arc: tangent
+    assert np.hypot(*v[join]) == pytest.approx(0.05, rel=1e-3)  # 3000 mm/min, no stop
+    assert np.all(np.abs(v) <= 0.06 * (1 + 1e-9))
+    acc = np.diff(v, axis=0) / T
+    assert np.max(np.abs(acc)) <= 0.8 * (1 + 1e-6)
+    assert pos[-1].tolist() == pytest.approx([0.0, 0.0], abs=1e-12)
