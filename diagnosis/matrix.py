@@ -211,6 +211,9 @@ SHORT = {
     "torque_saturation": "sat",
     "time_delay": "dly",
     "sensor_time_offset": "sto",
+    "setpoint_delay": "spd",
+    "measurement_delay": "msd",
+    "scale_error": "scl",
 }
 
 

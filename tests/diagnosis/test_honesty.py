@@ -62,6 +62,12 @@ def test_every_effect_strips_to_a_valid_axis_without_it(effect: Effect) -> None:
             "control.torque_limit": 3.0,
             "control.delay": 0.000375,
             "control.sensor_time_offset": 0.001,
+            "control.setpoint_delay": 0.002,
+            "control.setpoint_delay_rate": 1e-4,
+            "control.measurement_delay": 0.0005,
+            "control.scale_error_amplitude": 5e-6,
+            "control.scale_error_period": 0.0125,
+            "control.scale_error_phase": 0.3,
         }
     )
     model = MODELS[effect]
