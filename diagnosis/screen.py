@@ -625,6 +625,13 @@ def screen(
     data = data_scales(inp)
     following = float(np.std(m_rec.reference - m_rec.feedback))
     candidates = frozenset(effects) - effects_in(nominal)
+    limit = nominal.control.torque_limit
+    tau_max = float(np.max(np.abs(recording["motor_torque"])))
+    if Effect.TORQUE_SATURATION in effects and limit and tau_max < limit:
+        # a limit lower than the data sheet's (the drive's parameter set otherwise than
+        # stated): the recorded torque never reaches the stated one, so the loop scans limits
+        # at the top of the recorded torque (a plateau there is the drive's real limit)
+        candidates |= {Effect.TORQUE_SATURATION}
     not_tested: dict[Effect, str] = {}
     for e in candidates & UNTESTED.keys():
         not_tested[e] = UNTESTED[e]
