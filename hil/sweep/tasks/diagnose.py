@@ -71,6 +71,7 @@ def run_diagnose(spec: FmuSpec, options: Mapping[str, str]) -> Row:
         "named": ",".join(named),
         "first": named[0] if named else "none",
         "verdict": "named" if named else ("unexplained" if d.unexplained else "explained"),
+        "why_unexplained": "; ".join(d.adequacy.hints) if d.unexplained else "",
         "datasheet_wrong": ",".join(v.key for v in d.datasheet if v.datasheet_wrong),
         "fit_torque_before": d.fit_before["motor_torque"].fit_percent,
         "fit_torque_after": d.fit_after["motor_torque"].fit_percent,
