@@ -151,6 +151,10 @@ def _effect_keys(effects: Sequence[Effect], axis: AxisConfig) -> list[str]:
                 continue
             elif axis.value(k) is not None:
                 out.append(k)
+        if e is Effect.ASYMMETRIC_FRICTION and axis.friction.coulomb is not None:
+            # the friction of the positive direction is the other half of the effect: it
+            # may leave the data sheet's box as the negative one does
+            out.append("friction.coulomb")
     return out
 
 
@@ -231,6 +235,29 @@ def _fit_model(
     n_free = len(params) + (1 if discrete is not None else 0)
     score, loss = scorer.score(res, n_free)
     return ModelFit(name, tuple(effects), res, score, loss, tuple(bounds))
+
+
+def _equivalent(
+    named: Effect, other: Effect, axis: AxisConfig
+) -> tuple[dict[str, float | None], str]:
+    """The values of ``other`` that make the same torque as ``named`` at the fitted ``axis``,
+    where the two are one torque law while the axis moves: a load torque τ_L on Coulomb
+    friction c is friction c + τ_L in the positive direction and c − τ_L in the negative
+    one (exact at any speed ≠ 0). Empty where no such rule is known (the evidence's
+    estimate is used then)."""
+    f = axis.friction
+    pair = (named, other) == (Effect.CONSTANT_LOAD_TORQUE, Effect.ASYMMETRIC_FRICTION)
+    if pair and f.coulomb is not None:
+        load = axis.disturbance.constant_torque or 0.0
+        pos, neg = f.coulomb + load, f.coulomb - load
+        if pos < 0.0 or neg < 0.0:
+            return {}, f"the load torque exceeds the Coulomb friction ({load:.3g})"
+        return {
+            "friction.coulomb": pos,
+            "friction.coulomb_negative": neg,
+            "friction.viscous_negative": f.viscous or 0.0,
+        }, ""
+    return {}, "no equivalence rule"
 
 
 def _without(axis: AxisConfig, effect: Effect, nominal: AxisConfig) -> AxisConfig:
@@ -363,7 +390,9 @@ def closed_loop(ctx: Context, screening: Screening, pool: Executor | None = None
             if est is None:
                 continue
             stripped = _without(final.result.axis, a, nominal)
-            vals, why = effect_values(b, est, stripped)
+            vals, why = _equivalent(a, b, final.result.axis)
+            if not vals:
+                vals, why = effect_values(b, est, stripped)
             if not vals:
                 notes.append(f"{b.value} (ambiguous with {a.value}) not fitted: {why}")
                 continue
