@@ -132,15 +132,20 @@ class ClosedLoop:
     gate: list[GateStep] = field(default_factory=list)
 
 
-def worse_part(nominal_loss: np.ndarray, loss: np.ndarray, parts: int = HELDOUT_PARTS) -> int:
+def worse_part(
+    nominal_loss: np.ndarray, loss: np.ndarray, share: float, parts: int = HELDOUT_PARTS
+) -> int:
     """The first of ``parts`` consecutive parts of the held-out samples where ``loss`` (rows:
     signals, the scaled held-out residuals of :meth:`.scoring.Scorer.score`) costs more than
-    ``nominal_loss``; -1 where it costs no more in any."""
+    ``nominal_loss`` by more than ``share`` of the nominal's whole held-out cost (the least
+    improvement an effect must bring, the same bar the other way); -1 where none does."""
     n = loss.shape[1]
+    tol = share * float(np.sum(nominal_loss**2))
     edges = np.linspace(0, n, parts + 1).astype(int)
     for i in range(parts):
         a, b = edges[i], edges[i + 1]
-        if b > a and float(np.sum(loss[:, a:b] ** 2)) > float(np.sum(nominal_loss[:, a:b] ** 2)):
+        more = float(np.sum(loss[:, a:b] ** 2)) - float(np.sum(nominal_loss[:, a:b] ** 2))
+        if b > a and more > tol:
             return i
     return -1
 
@@ -444,7 +449,7 @@ def closed_loop(ctx: Context, screening: Screening, pool: Executor | None = None
                 )
                 named = effects
                 final = alt
-    part = worse_part(nominal_mf.loss, final.loss)
+    part = worse_part(nominal_mf.loss, final.loss, opts.min_improvement)
     if final is not nominal_mf and part >= 0:
         # better overall, worse on one part of the held-out motions: the data disagree
         # between parts (a load or an inertia that changes, a motion the fit did not see);
@@ -453,7 +458,8 @@ def closed_loop(ctx: Context, screening: Screening, pool: Executor | None = None
         notes.append(
             f"the data disagree between parts: {final.name} predicts the held-out data "
             f"better overall ({nominal_mf.heldout.cost:.4g} -> {final.heldout.cost:.4g}) but "
-            f"part {part + 1} of {HELDOUT_PARTS} (in time) worse than the nominal as given: "
+            f"part {part + 1} of {HELDOUT_PARTS} (in time) worse than the nominal as given by "
+            f"more than {100.0 * opts.min_improvement:g} % of its held-out cost: "
             f"the nominal is kept{dropped}"
         )
         final, named = nominal_mf, []
