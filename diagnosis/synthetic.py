@@ -365,6 +365,11 @@ class GeneratedCase:
     truth_without: AxisConfig
     references: References
     process_nm: np.ndarray
+    #: what the diagnosis should name, when the truth is no axis file (an FMU's inside):
+    #: the effects left out (None: those of ``truth`` the nominal lacks) and the names that
+    #: count as a correct first naming (empty: ``case.effect`` alone)
+    expected: list[str] | None = None
+    accepted: tuple[str, ...] = ()
 
 
 def _peak_demand(axis: AxisConfig, refs: References, plant: Simulator) -> float:
