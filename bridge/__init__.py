@@ -8,7 +8,8 @@ the contract docs/canopen_layout.md.
 Modules: :mod:`.cycle` (the pure per-SYNC controller), :mod:`.node` (the node on the bus and
 its loop), :mod:`.master` (drive start-up over SDO), :mod:`.params` / :mod:`.objects` /
 :mod:`.od` / :mod:`.eds` (parameters, SDO server, object table, EDS), :mod:`.adapt` /
-:mod:`.profile` / :mod:`.probe` (adapting to a real drive, drive profiles), :mod:`.interpolator`,
+:mod:`.probe` (adapting to a real drive; drive profiles: :mod:`virtual_bus.formats.drive_profile`),
+:mod:`.interpolator`,
 :mod:`.timing` (lockstep and real-time pacing), :mod:`.recorder`, :mod:`.sim` (with the
 simulated drive), :mod:`.busload`, :mod:`.demo`, :mod:`.run`, :mod:`.bench`.
 """
@@ -31,7 +32,6 @@ from .master import DriveInfo, DriveMaster, DriveSetup
 from .node import Bridge, BridgeConfig
 from .objects import ObjectServer, PdoCounters
 from .params import BridgeParams
-from .profile import DriveProfile, LoadSource, ModeChoice, ProfileError, load_profile
 from .recorder import BusLog, TraceRecorder
 from .scaling import Scaling
 from .timing import LockstepPacer, RealTimePacer, TimeMode
@@ -49,14 +49,11 @@ __all__ = [
     "CycleLayout",
     "DriveInfo",
     "DriveMaster",
-    "DriveProfile",
     "DriveSetup",
     "DriveSetupError",
     "DriveTimeoutError",
     "Interpolator",
-    "LoadSource",
     "LockstepPacer",
-    "ModeChoice",
     "Move",
     "MoveError",
     "MoveFileError",
@@ -64,7 +61,6 @@ __all__ = [
     "ParameterError",
     "PdoCounters",
     "PdoFrameError",
-    "ProfileError",
     "RealTimePacer",
     "RxFrame",
     "Scaling",
@@ -75,6 +71,5 @@ __all__ = [
     "TimeMode",
     "TraceRecorder",
     "load_move_file",
-    "load_profile",
     "parse_move",
 ]

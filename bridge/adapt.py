@@ -1,7 +1,8 @@
 """From what a drive reports to the bridge's layout, mode and scaling (pure, no bus).
 
 :class:`DriveFacts` is what the start-up read over SDO (:meth:`bridge.master.DriveMaster.
-read_facts`); :func:`plan` turns facts and a :class:`~bridge.profile.DriveProfile` into a
+read_facts`); :func:`plan` turns facts and a drive profile
+(:class:`~virtual_bus.formats.drive_profile.DriveProfile`) into a
 :class:`Plan`: which drive TPDOs carry which objects (first fit in the order of
 :data:`TPDO_ITEMS`, at most 64 bits and the drive's number of mapping entries per PDO),
 the velocity mode (CiA 402 6060h), the scaling. Whatever is missing and needed raises
@@ -22,16 +23,26 @@ from typing import TypeVar
 
 from virtual_bus.contract import (
     TPDO_COMM_BASE,
+    Cia301,
+    Cia402,
+    Cia406,
     DataType,
     pdo_comm_index,
     pdo_mapping_index,
     rpdo_cob_id,
     tpdo_cob_id,
 )
+from virtual_bus.formats.drive_profile import (
+    OBJECT_TYPES,
+    DriveProfile,
+    LoadSource,
+    ModeChoice,
+    ObjectKey,
+    format_key,
+)
 
 from .errors import DriveSetupError
 from .layout import CycleLayout, MappedObject, RxFrame, Signal, struct_code
-from .profile import OBJECT_TYPES, DriveProfile, LoadSource, ModeChoice, ObjectKey, format_key
 from .scaling import MOTOR_INCREMENTS_PER_REV, Scaling
 
 log = logging.getLogger("bridge")
@@ -43,7 +54,7 @@ CONTRACT_IDENTITY = (0x0000_0000, 0x0000_0402)
 PV_BIT = 1 << 2
 CSV_BIT = 1 << 8
 #: CiA 406 encoder: position value (UNSIGNED32, steps; decoded as two's complement).
-ENCODER_POSITION: ObjectKey = (0x6004, 0)
+ENCODER_POSITION: ObjectKey = (Cia406.POSITION_VALUE, 0)
 
 
 class VelocityMode(IntEnum):
@@ -184,21 +195,21 @@ def choose_mode(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> Velo
             raise _fail(
                 f"{where}: 6502h = 0x{modes:08X} does not list cyclic synchronous velocity "
                 '(bit 8); set mode.mode = "pv" (profile velocity) in the drive profile',
-                (0x6502, 0),
+                (Cia402.SUPPORTED_DRIVE_MODES, 0),
             )
         return VelocityMode.CYCLIC_SYNCHRONOUS_VELOCITY
     if profile.mode is ModeChoice.PV:
         if modes is not None and not modes & PV_BIT:
             raise _fail(
                 f"{where}: 6502h = 0x{modes:08X} does not list profile velocity (bit 2)",
-                (0x6502, 0),
+                (Cia402.SUPPORTED_DRIVE_MODES, 0),
             )
         return VelocityMode.PROFILE_VELOCITY
     if modes is None:
         raise _fail(
             f'{where}: 6502h supported drive modes not readable; set mode.mode = "csv" or '
             '"pv" in the drive profile',
-            (0x6502, 0),
+            (Cia402.SUPPORTED_DRIVE_MODES, 0),
         )
     if modes & CSV_BIT:
         return VelocityMode.CYCLIC_SYNCHRONOUS_VELOCITY
@@ -207,7 +218,7 @@ def choose_mode(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> Velo
     raise _fail(
         f"{where}: 6502h = 0x{modes:08X} lists neither cyclic synchronous velocity (bit 8) nor "
         "profile velocity (bit 2): the bridge needs one of them",
-        (0x6502, 0),
+        (Cia402.SUPPORTED_DRIVE_MODES, 0),
     )
 
 
@@ -215,7 +226,10 @@ def choose_mode(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> Velo
 def load_item(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> Item | None:
     """The drive object carrying the load position (None: encoder node or motor feedback)."""
     source = profile.load_source
-    sub1, var = (0x60E4, 1), (0x60E4, 0)
+    sub1, var = (
+        (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 1),
+        (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 0),
+    )
     is_var = len(facts.objects.get(var, b"")) == 4  # sub 0 of an array is one byte
     if source is LoadSource.AUTO:
         if facts.has(sub1) and not is_var and profile.may_map(sub1):
@@ -262,13 +276,13 @@ def load_item(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> Item |
 # --- PDO packing ---------------------------------------------------------------------------------
 def tpdo_items(facts: DriveFacts, profile: DriveProfile, load: Item | None) -> list[Item]:
     """Objects to map, in packing order; optional ones the drive lacks are left out."""
-    items = [Item(Signal.MOTOR_POSITION, (0x6064, 0), "i32")]
+    items = [Item(Signal.MOTOR_POSITION, (Cia402.POSITION_ACTUAL_VALUE, 0), "i32")]
     if load is not None:
         items.append(load)
-    items.append(Item(Signal.STATUSWORD, (0x6041, 0), "u16"))
+    items.append(Item(Signal.STATUSWORD, (Cia402.STATUSWORD, 0), "u16"))
     for signal, key, type_name in (
-        (Signal.TORQUE, (0x6077, 0), "i16"),
-        (Signal.MOTOR_VELOCITY, (0x606C, 0), "i32"),
+        (Signal.TORQUE, (Cia402.TORQUE_ACTUAL_VALUE, 0), "i16"),
+        (Signal.MOTOR_VELOCITY, (Cia402.VELOCITY_ACTUAL_VALUE, 0), "i32"),
     ):
         if facts.has(key) and profile.may_map(key):
             items.append(Item(signal, key, type_name))
@@ -327,7 +341,7 @@ def _position_source(facts: DriveFacts, profile: DriveProfile) -> tuple[float, s
     """6064h units per motor revolution and where the value came from (None: unknown)."""
     if profile.position_increments_per_rev is not None:
         return float(profile.position_increments_per_rev), "scaling.position_increments_per_rev"
-    feed, gear = facts.ratio(0x6092), facts.ratio(0x6091)
+    feed, gear = facts.ratio(Cia402.FEED_CONSTANT), facts.ratio(Cia402.GEAR_RATIO)
     if feed is not None:
         # CiA 402 factor group: position unit = feed / (feed constant) per driving shaft rev
         g_motor, g_shaft = gear or (1, 1)
@@ -335,7 +349,7 @@ def _position_source(facts: DriveFacts, profile: DriveProfile) -> tuple[float, s
             f" x 6091h gear ratio {g_motor}:{g_shaft}" if gear is not None else ""
         )
         return feed[0] / feed[1] * g_shaft / g_motor, where
-    resolution = facts.ratio(0x608F)
+    resolution = facts.ratio(Cia402.POSITION_ENCODER_RESOLUTION)
     if resolution is not None:
         return resolution[0] / resolution[1], (
             f"608Fh position encoder resolution {resolution[0]}/{resolution[1]}"
@@ -351,7 +365,11 @@ def position_units_per_rev(facts: DriveFacts, profile: DriveProfile, drive_id: i
     if found is not None:
         value, where = found
         if value < MIN_POSITION_UNITS_PER_REV:
-            key = (0x608F, 1) if where.startswith("608F") else (0x6092, 1)
+            key = (
+                (Cia402.POSITION_ENCODER_RESOLUTION, 1)
+                if where.startswith("608F")
+                else (Cia402.FEED_CONSTANT, 1)
+            )
             raise _fail(
                 f"drive {drive_id}: 6064h would count {value:g} units per motor revolution "
                 f"({where}): too coarse for the position loop and the discrepancy check "
@@ -361,12 +379,12 @@ def position_units_per_rev(facts: DriveFacts, profile: DriveProfile, drive_id: i
                 key,
             )
         return value
-    factor = facts.ratio(0x6093)
+    factor = facts.ratio(Cia402.POSITION_FACTOR)
     if factor is not None and factor != (1, 1):
         raise _fail(
             f"drive {drive_id}: 6093h position factor {factor[0]}/{factor[1]} and no 608Fh: "
             "set scaling.position_increments_per_rev in the drive profile",
-            (0x6093, 1),
+            (Cia402.POSITION_FACTOR, 1),
         )
     if facts.contract_drive:
         return float(MOTOR_INCREMENTS_PER_REV)
@@ -374,7 +392,7 @@ def position_units_per_rev(facts: DriveFacts, profile: DriveProfile, drive_id: i
         f"drive {drive_id}: 608Fh position encoder resolution not readable (and no 6092h feed "
         "constant): set scaling.position_increments_per_rev (6064h units per motor "
         "revolution) in the drive profile",
-        (0x608F, 1),
+        (Cia402.POSITION_ENCODER_RESOLUTION, 1),
     )
 
 
@@ -385,7 +403,7 @@ def velocity_units_per_rev_s(
     velocity factor (6094h, 6095h, 6096h) other than 1 says otherwise."""
     if profile.velocity_units_per_rev_s is not None:
         return float(profile.velocity_units_per_rev_s)
-    for index in (0x6094, 0x6095, 0x6096):
+    for index in (Cia402.VELOCITY_ENCODER_FACTOR, Cia402.VELOCITY_FACTOR_1, Cia402.VELOCITY_FACTOR):
         present = facts.has((index, 1)) or facts.has((index, 0))
         if present and facts.ratio(index) != (1, 1):
             ratio = facts.ratio(index)
@@ -403,7 +421,7 @@ def rated_torque(facts: DriveFacts, profile: DriveProfile) -> int | None:
     """6076h in mN·m, None when 0 or absent (torque then in per mille)."""
     value = profile.rated_torque_mnm
     if value is None:
-        value = facts.u32((0x6076, 0))
+        value = facts.u32((Cia402.MOTOR_RATED_TORQUE, 0))
     return value or None
 
 
@@ -429,7 +447,13 @@ def _required_objects(
     facts: DriveFacts, profile: DriveProfile, drive_id: int
 ) -> list[DriveSetupError]:
     found = []
-    core = ((0x6040, 0), (0x6041, 0), (0x6064, 0), (0x60FF, 0), (0x6060, 0))
+    core = (
+        (Cia402.CONTROLWORD, 0),
+        (Cia402.STATUSWORD, 0),
+        (Cia402.POSITION_ACTUAL_VALUE, 0),
+        (Cia402.TARGET_VELOCITY, 0),
+        (Cia402.MODES_OF_OPERATION, 0),
+    )
     if not any(facts.has(key) for key in core):  # not a drive at all: nothing else matters
         shown = "not readable" if facts.device_type is None else f"0x{facts.device_type:08X}"
         raise _fail(
@@ -445,10 +469,10 @@ def _required_objects(
                 _fail(f"drive {drive_id}: {format_key(key)} missing: not a CiA 402 drive", key)
             )
     for key, what in (
-        ((0x6064, 0), "position actual value, in a TPDO every SYNC"),
-        ((0x6041, 0), "statusword, in a TPDO every SYNC"),
-        ((0x6040, 0), "controlword, in the RPDO"),
-        ((0x60FF, 0), "target velocity, in the RPDO"),
+        ((Cia402.POSITION_ACTUAL_VALUE, 0), "position actual value, in a TPDO every SYNC"),
+        ((Cia402.STATUSWORD, 0), "statusword, in a TPDO every SYNC"),
+        ((Cia402.CONTROLWORD, 0), "controlword, in the RPDO"),
+        ((Cia402.TARGET_VELOCITY, 0), "target velocity, in the RPDO"),
     ):
         if facts.has(key) and not profile.may_map(key):
             found.append(
@@ -470,7 +494,7 @@ def _identity(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> None:
             raise _fail(
                 f"drive {drive_id}: {name} is 0x{got:08X}, the drive profile "
                 f"'{profile.name}' is for 0x{want:08X}: wrong profile or wrong node-ID",
-                (0x1018, 1 if "vendor" in name else 2),
+                (Cia301.IDENTITY, 1 if "vendor" in name else 2),
             )
 
 
@@ -488,7 +512,10 @@ def _rpdo(facts: DriveFacts, profile: DriveProfile, drive_id: int) -> PdoPlan:
         rpdo_cob,
         False,
         255,
-        (Item(Signal.STATUSWORD, (0x6040, 0), "u16"), Item(Signal.STATUSWORD, (0x60FF, 0), "i32")),
+        (
+            Item(Signal.STATUSWORD, (Cia402.CONTROLWORD, 0), "u16"),
+            Item(Signal.STATUSWORD, (Cia402.TARGET_VELOCITY, 0), "i32"),
+        ),
     )
 
 
@@ -528,7 +555,11 @@ def plan(
     cob_of = dict(zip(profile.tpdos, profile.tpdo_cob_ids or (), strict=False))
     tpdo_plans: tuple[PdoPlan, ...] = ()
     pdos = attempt(_usable_pdos, facts, profile, drive_id)
-    if pdos is not None and facts.has((0x6064, 0)) and facts.has((0x6041, 0)):
+    if (
+        pdos is not None
+        and facts.has((Cia402.POSITION_ACTUAL_VALUE, 0))
+        and facts.has((Cia402.STATUSWORD, 0))
+    ):
         packed = attempt(pack, tpdo_items(facts, profile, load), pdos, profile, drive_id)
         tpdo_plans = tuple(
             PdoPlan(
@@ -610,31 +641,31 @@ def plan(
 
 #: Objects the start-up reads (existence and value) besides the PDO parameters.
 CANDIDATES: tuple[ObjectKey, ...] = (
-    (0x6040, 0),
-    (0x6041, 0),
-    (0x6060, 0),
-    (0x6061, 0),
-    (0x6064, 0),
-    (0x606C, 0),
-    (0x6076, 0),
-    (0x6077, 0),
-    (0x6083, 0),
-    (0x6084, 0),
-    (0x60E4, 0),
-    (0x60E4, 1),
-    (0x60FF, 0),
-    (0x608F, 1),
-    (0x608F, 2),
-    (0x6091, 1),
-    (0x6091, 2),
-    (0x6092, 1),
-    (0x6092, 2),
-    (0x6093, 1),
-    (0x6093, 2),
-    (0x6094, 1),
-    (0x6094, 2),
-    (0x6095, 1),
-    (0x6095, 2),
-    (0x6096, 1),
-    (0x6096, 2),
+    (Cia402.CONTROLWORD, 0),
+    (Cia402.STATUSWORD, 0),
+    (Cia402.MODES_OF_OPERATION, 0),
+    (Cia402.MODES_OF_OPERATION_DISPLAY, 0),
+    (Cia402.POSITION_ACTUAL_VALUE, 0),
+    (Cia402.VELOCITY_ACTUAL_VALUE, 0),
+    (Cia402.MOTOR_RATED_TORQUE, 0),
+    (Cia402.TORQUE_ACTUAL_VALUE, 0),
+    (Cia402.PROFILE_ACCELERATION, 0),
+    (Cia402.PROFILE_DECELERATION, 0),
+    (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 0),
+    (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 1),
+    (Cia402.TARGET_VELOCITY, 0),
+    (Cia402.POSITION_ENCODER_RESOLUTION, 1),
+    (Cia402.POSITION_ENCODER_RESOLUTION, 2),
+    (Cia402.GEAR_RATIO, 1),
+    (Cia402.GEAR_RATIO, 2),
+    (Cia402.FEED_CONSTANT, 1),
+    (Cia402.FEED_CONSTANT, 2),
+    (Cia402.POSITION_FACTOR, 1),
+    (Cia402.POSITION_FACTOR, 2),
+    (Cia402.VELOCITY_ENCODER_FACTOR, 1),
+    (Cia402.VELOCITY_ENCODER_FACTOR, 2),
+    (Cia402.VELOCITY_FACTOR_1, 1),
+    (Cia402.VELOCITY_FACTOR_1, 2),
+    (Cia402.VELOCITY_FACTOR, 1),
+    (Cia402.VELOCITY_FACTOR, 2),
 )

@@ -26,8 +26,10 @@ import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary import datatypes as dt
 
+from virtual_bus.contract import MANUFACTURER_AREA, Cia402
+from virtual_bus.formats.drive_profile import LoadSource, ObjectKey, format_key
+
 from .adapt import DriveFacts
-from .profile import LoadSource, ObjectKey, format_key
 
 #: Words in an EDS name that make a manufacturer object a load-position candidate, and the
 #: rank they give (higher first): a second measuring system is what the regulator needs.
@@ -106,21 +108,21 @@ def additional_position(
 ) -> list[LoadCandidate]:
     """60E4h as the drive answered it: a plain INTEGER32 (sub-index 0 reads 4 bytes) or the
     sub-indices 01h.. it has."""
-    sub0 = facts.objects.get((0x60E4, 0))
+    sub0 = facts.objects.get((Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 0))
     if sub0 is not None and len(sub0) == 4:
         return [
             LoadCandidate(
                 LoadSource.ADDITIONAL_VAR,
-                (0x60E4, 0),
+                (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 0),
                 "additional position actual value (plain variable)",
                 "i32",
-                _mappable(od, (0x60E4, 0)),
+                _mappable(od, (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 0)),
                 rank=5,
             )
         ]
     found = []
     for (index, sub), _raw in sorted(facts.objects.items()):
-        if index != 0x60E4 or sub == 0:
+        if index != Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE or sub == 0:
             continue
         found.append(
             LoadCandidate(
@@ -139,7 +141,7 @@ def vendor_objects(od: canopen.ObjectDictionary) -> list[LoadCandidate]:
     """Manufacturer objects of the EDS whose name and type say "a measured position"."""
     found = []
     for index in sorted(od.indices):
-        if not 0x2000 <= index <= 0x5FFF:
+        if index not in MANUFACTURER_AREA:
             continue
         obj = od[index]
         members = [obj] if isinstance(obj, ODVariable) else [obj[s] for s in sorted(obj.subindices)]

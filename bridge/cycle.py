@@ -38,9 +38,10 @@ from canopen.profiles.p402 import State402
 
 from regulator import core as rcore
 from regulator.errors import require_finite_input
-from virtual_bus.contract import CW_FAULT_RESET, NmtState
+from virtual_bus.contract import CW_FAULT_RESET
 
 from . import cyclecore as K
+from .consumers import NodeWatch
 from .errors import ParameterError, SdoAbort
 from .interpolator import Interpolator, Move, Table
 from .layout import CycleLayout, Signal, contract_layout
@@ -51,9 +52,6 @@ log = logging.getLogger("bridge")
 
 #: Time the drive gets to reach Operation Enabled after an enable command, s.
 ENABLE_TIMEOUT_S = 1.0
-#: NMT state bytes in a heartbeat (CiA 301).
-NMT_OPERATIONAL = NmtState.OPERATIONAL
-NMT_BOOTUP = NmtState.INITIALISING
 
 
 class BridgeState(Enum):
@@ -251,18 +249,25 @@ class CycleController:
         self.set_scaling(scaling)
         self.now_s = 0.0
         self.controlword = CW_DISABLED
+        #: what DISABLED commands: switch on, no motion (0007h), or the quick stop (0002h)
+        #: after :meth:`halt` -- the drive's own ramp to standstill, never a coasting axis
+        self.disabled_controlword = CW_DISABLED
         # supervision
         self.cycles = 0
         self.drive_error_code = 0
-        self._emcy_pending: tuple[int, int] | None = None
-        self._heartbeat_at: float | None = None
-        self._heartbeat_state = NMT_OPERATIONAL
         self._enable_started_s: float | None = None
-        #: node-ID of a CiA 406 encoder supplying the load position (heartbeat-supervised)
-        self.encoder_id: int | None = None
-        self._encoder_heartbeat_at: float | None = None
-        self._encoder_state = NMT_OPERATIONAL
-        self._encoder_emcy_pending: tuple[int, int] | None = None
+        #: the nodes whose heartbeats and EMCYs stop the axis (bridge.consumers), checked in
+        #: this order: the drive, then a CiA 406 encoder node supplying the load position
+        self.drive_watch = NodeWatch(
+            "drive",
+            StopReason.DRIVE_EMCY,
+            StopReason.HEARTBEAT_LOST,
+            StopReason.DRIVE_NMT,
+            states_from_operational=True,
+        )
+        self.encoder_watch: NodeWatch | None = None
+        self._watches: tuple[NodeWatch, ...] = (self.drive_watch,)
+        self._encoder_id: int | None = None
 
     # --- configuration ---------------------------------------------------------------------
     def _build(self, params: BridgeParams) -> None:
@@ -377,42 +382,59 @@ class CycleController:
             self.interpolator = Interpolator(params.cycle_s, self.load_position)
 
     # --- events between cycles -------------------------------------------------------------
+    @property
+    def encoder_id(self) -> int | None:
+        """Node-ID of a CiA 406 encoder supplying the load position (None: none); setting
+        it adds the node to the supervised ones."""
+        return self._encoder_id
+
+    @encoder_id.setter
+    def encoder_id(self, node_id: int | None) -> None:
+        self._encoder_id = node_id
+        self.encoder_watch = None
+        if node_id is not None:
+            self.encoder_watch = NodeWatch(
+                f"encoder node {node_id}",
+                StopReason.ENCODER_EMCY,
+                StopReason.HEARTBEAT_LOST,
+                StopReason.DRIVE_NMT,
+                emcy_consequence=": its position (the load scale) is not trusted",
+            )
+        self._watches = (self.drive_watch,) + (() if node_id is None else (self.encoder_watch,))
+
     def on_heartbeat(self, nmt_state: int, now_s: float) -> None:
-        """A heartbeat of the drive (NMT state byte without the toggle bit) at ``now_s``."""
-        self._heartbeat_at = now_s
-        self._heartbeat_state = nmt_state & 0x7F
+        """A heartbeat of the drive (NMT state byte without the toggle bit) at ``now_s``;
+        its state counts from the first Operational one (bridge.consumers; a drive that
+        never becomes Operational sends no TPDO: PDO loss stops the axis)."""
+        self.drive_watch.on_heartbeat(nmt_state, now_s)
 
     def on_encoder_heartbeat(self, nmt_state: int, now_s: float) -> None:
         """A heartbeat of the CiA 406 encoder node (:attr:`encoder_id`) at ``now_s``."""
-        self._encoder_heartbeat_at = now_s
-        self._encoder_state = nmt_state & 0x7F
+        if self.encoder_watch is not None:
+            self.encoder_watch.on_heartbeat(nmt_state, now_s)
 
     def on_emcy(self, error_code: int, error_register: int) -> None:
         """An EMCY of the drive; code 0000h (error reset) only clears the stored code."""
         self.drive_error_code = error_code
-        if error_code != 0:
-            self._emcy_pending = (error_code, error_register)
+        self.drive_watch.on_emcy(error_code, error_register)
 
     def on_encoder_emcy(self, error_code: int, error_register: int) -> None:
         """An EMCY of the CiA 406 encoder node that supplies the load position: a non-zero
         code means its position may be wrong, so the axis stops (0000h: error reset)."""
-        if error_code != 0:
-            self._encoder_emcy_pending = (error_code, error_register)
+        if self.encoder_watch is not None:
+            self.encoder_watch.on_emcy(error_code, error_register)
 
     def restart_supervision(self) -> None:
         """Forget heartbeats and EMCYs seen so far (the drive's boot-up and pre-operational
         heartbeats during start-up); monitoring begins with the next heartbeat."""
-        self._heartbeat_at = None
-        self._heartbeat_state = NMT_OPERATIONAL
-        self._encoder_heartbeat_at = None
-        self._encoder_state = NMT_OPERATIONAL
-        self._emcy_pending = None
-        self._encoder_emcy_pending = None
+        for watch in self._watches:
+            watch.forget()
 
     def command(self, command: Command) -> None:
         """Enable, disable or reset; ParameterError 0800 0022 if not possible now."""
         state = self.state
         if command is Command.ENABLE and state is BridgeState.DISABLED:
+            self.disabled_controlword = CW_DISABLED
             self._set_enabling()
         elif command is Command.DISABLE and state in (BridgeState.ENABLING, BridgeState.RUNNING):
             self.state = BridgeState.DISABLED
@@ -421,7 +443,7 @@ class CycleController:
             self.state = BridgeState.DISABLED
             self.stop_reason = StopReason.NONE
             self.stop_message = "none"
-            self._emcy_pending = None
+            self.drive_watch.emcy_pending = None
             self.consecutive_missed = 0
         elif (
             command is Command.ENABLE and state in (BridgeState.ENABLING, BridgeState.RUNNING)
@@ -435,6 +457,21 @@ class CycleController:
                 value=int(command),
                 abort_code=SdoAbort.DEVICE_STATE,
             )
+
+    def halt(self) -> None:
+        """The end of a run while the axis may move (a signal, ``--seconds`` in a move):
+        DISABLED with the quick stop (0002h, set point 0), so that the drive ramps the motor
+        to standstill (6085h, 605Ah) instead of switching the power stage off and letting it
+        coast. A stop in force keeps its reason (it already commands the quick stop)."""
+        if self.axis_enabled:
+            self.state = BridgeState.DISABLED
+            self._clear_motion()
+        self.disabled_controlword = CW_STOPPED
+
+    @property
+    def status_received(self) -> bool:
+        """The drive's statusword came in the last cycle."""
+        return self._status_in
 
     def stop(self, reason: StopReason, message: str) -> None:
         """Stop the axis from outside the controller (the loop: overruns, its own errors);
@@ -532,23 +569,14 @@ class CycleController:
         state = self.state
         # quiet: nothing for _supervise but the checks the core makes (PDO loss, drive state):
         # no EMCY pending, heartbeats (if supervised) in time and operational -- the same
-        # conditions as there (inline: a Python call less per cycle)
-        quiet = (
-            state is _RUNNING and self._emcy_pending is None and self._encoder_emcy_pending is None
-        )
+        # conditions as there
+        quiet = state is _RUNNING
         if quiet:
-            at = self._heartbeat_at
-            if at is not None:
-                consumer_ms = self.params.heartbeat_consumer_ms
-                quiet = self._heartbeat_state == NMT_OPERATIONAL and not (
-                    consumer_ms and now_s - at > consumer_ms / 1000.0
-                )
-            at = self._encoder_heartbeat_at
-            if quiet and at is not None:
-                consumer_ms = self.params.heartbeat_consumer_ms
-                quiet = self._encoder_state == NMT_OPERATIONAL and not (
-                    consumer_ms and now_s - at > consumer_ms / 1000.0
-                )
+            consumer_ms = self.params.heartbeat_consumer_ms
+            for watch in self._watches:
+                if not watch.quiet(now_s, consumer_ms):
+                    quiet = False
+                    break
         if quiet:
             # the common case in one call of the core; a stop or an error goes on below
             interp = self.interpolator
@@ -574,7 +602,7 @@ class CycleController:
         elif state is _STOPPED:
             self._output(CW_STOPPED, 0.0)
         else:
-            self._output(CW_DISABLED, 0.0)
+            self._output(self.disabled_controlword, 0.0)
         return self._rpdo
 
     def _supervise(self) -> bool:
@@ -586,55 +614,10 @@ class CycleController:
                 f"{self.consecutive_missed} consecutive cycles without a complete TPDO set "
                 f"(tolerance 200Ah = {p.pdo_loss_tolerance})",
             )
-        if self._emcy_pending is not None:
-            code, register = self._emcy_pending
-            self._emcy_pending = None
-            return self._stop(
-                StopReason.DRIVE_EMCY,
-                f"drive EMCY error code 0x{code:04X}, error register 0x{register:02X}",
-            )
-        if self._heartbeat_at is not None:
-            if p.heartbeat_consumer_ms and (
-                self.now_s - self._heartbeat_at > p.heartbeat_consumer_ms / 1000.0
-            ):
-                return self._stop(
-                    StopReason.HEARTBEAT_LOST,
-                    f"no drive heartbeat for {self.now_s - self._heartbeat_at:.3f} s "
-                    f"(1016h consumer time {p.heartbeat_consumer_ms} ms)",
-                )
-            if self._heartbeat_state != NMT_OPERATIONAL:
-                what = "boot-up" if self._heartbeat_state == NMT_BOOTUP else "NMT state"
-                return self._stop(
-                    StopReason.DRIVE_NMT,
-                    f"drive heartbeat reports {what} 0x{self._heartbeat_state:02X}, "
-                    f"not operational (0x05)",
-                )
-        if self._encoder_emcy_pending is not None:
-            code, register = self._encoder_emcy_pending
-            self._encoder_emcy_pending = None
-            return self._stop(
-                StopReason.ENCODER_EMCY,
-                f"encoder node {self.encoder_id} EMCY error code 0x{code:04X}, error register "
-                f"0x{register:02X}: its position (the load scale) is not trusted",
-            )
-        if self._encoder_heartbeat_at is not None:
-            return self._supervise_encoder(self._encoder_heartbeat_at)
-        return False
-
-    def _supervise_encoder(self, last_s: float) -> bool:
-        p = self.params
-        if p.heartbeat_consumer_ms and self.now_s - last_s > p.heartbeat_consumer_ms / 1000.0:
-            return self._stop(
-                StopReason.HEARTBEAT_LOST,
-                f"no heartbeat of encoder node {self.encoder_id} for {self.now_s - last_s:.3f} s"
-                f" (1016h consumer time {p.heartbeat_consumer_ms} ms)",
-            )
-        if self._encoder_state != NMT_OPERATIONAL:
-            return self._stop(
-                StopReason.DRIVE_NMT,
-                f"encoder node {self.encoder_id} heartbeat reports NMT state "
-                f"0x{self._encoder_state:02X}, not operational (0x05)",
-            )
+        for watch in self._watches:
+            stop = watch.check(self.now_s, p.heartbeat_consumer_ms)
+            if stop is not None:
+                return self._stop(StopReason(stop[0]), stop[1])
         return False
 
     def _enable(self) -> None:
@@ -643,7 +626,10 @@ class CycleController:
         if self._enable_started_s is None:
             self._enable_started_s = self.now_s
         ds = drive_state(self.statusword)
-        if ds is Drive402State.OPERATION_ENABLED:
+        if ds is Drive402State.OPERATION_ENABLED and self.consecutive_missed == 0:
+            # every frame of the layout came this cycle: the positions the move starts from
+            # are measured, not a default (on a busy machine the first TPDO1 may come late;
+            # holding a position never measured was a following error of the whole travel)
             self._enter_running()
             self._run()
             return

@@ -35,6 +35,7 @@ from typing import Any
 
 from regulator import core as rcore
 from regulator import cycle as rcycle
+from virtual_bus.contract import Cia402
 
 # --- the vector: the cycle block, parameters, state, the raw values of the frames ------------
 # The cycle block of regulator.cycle first (its parameters and results are the cycle's own):
@@ -91,8 +92,12 @@ S_FOLLOWING_ERROR = rcycle.Y_ERROR  # load units
 ) = range(rcycle.BLOCK_SIZE, rcycle.BLOCK_SIZE + 30)
 
 #: Raw value index of each :class:`bridge.layout.Signal` value (the CiA 402 object).
-RAW_INDEX = {0x6064: R_MOTOR_POSITION, 0x60E4: R_LOAD_POSITION, 0x6041: R_STATUSWORD}
-RAW_INDEX |= {0x6077: R_TORQUE, 0x606C: R_MOTOR_VELOCITY}
+RAW_INDEX = {
+    Cia402.POSITION_ACTUAL_VALUE: R_MOTOR_POSITION,
+    Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE: R_LOAD_POSITION,
+    Cia402.STATUSWORD: R_STATUSWORD,
+}
+RAW_INDEX |= {Cia402.TORQUE_ACTUAL_VALUE: R_TORQUE, Cia402.VELOCITY_ACTUAL_VALUE: R_MOTOR_VELOCITY}
 
 #: Statusword bits 0-3, 5, 6 of Operation Enabled (canopen's State402.SW_MASK).
 OPERATION_ENABLED_MASK = 0x6F

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from canopen.objectdictionary import datatypes as dt
 
+from virtual_bus.contract import MANUFACTURER_AREA
+
 from .od import (
     BOOL,
     CONST,
@@ -124,7 +126,7 @@ def render_eds() -> str:
     indices = [obj.index for obj in OBJECTS]
     mandatory = [i for i in indices if i in _MANDATORY]
     optional = [i for i in indices if i < 0x2000 and i not in _MANDATORY]
-    manufacturer = [i for i in indices if 0x2000 <= i <= 0x5FFF]
+    manufacturer = [i for i in indices if i in MANUFACTURER_AREA]
     lines = [
         "[FileInfo]",
         "FileName=bridge.eds",

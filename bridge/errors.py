@@ -111,3 +111,9 @@ class NodeAccessError(BridgeError, RuntimeError):
         self.index = index
         self.subindex = subindex
         self.abort_code = abort_code
+
+
+class ContourError(BridgeError, ValueError):
+    """A contour (path, feed, axis limits, circular test) is refused before any axis moves:
+    a malformed segment or program line, a point outside an axis' travel limits, a feed or an
+    acceleration above what the axes allow (bridge.contour)."""

@@ -13,6 +13,7 @@ from enum import Enum
 from virtual_bus.contract import NMT_COB_ID as NMT_COB_ID
 from virtual_bus.contract import SYNC_COB_ID as SYNC_COB_ID
 from virtual_bus.contract import (
+    Cia402,
     DataType,
     emcy_cob_id,
     heartbeat_cob_id,
@@ -82,16 +83,33 @@ class PdoSpec:
 
 #: TPDO1: 6064h position actual value (I32) + 60E4h:01 load scale (I32), every SYNC.
 _I16, _I32, _U16 = DataType.INTEGER16, DataType.INTEGER32, DataType.UNSIGNED16
-TPDO1 = PdoSpec(1, True, 1, (MappedObject(0x6064, 0, _I32), MappedObject(0x60E4, 1, _I32)))
+TPDO1 = PdoSpec(
+    1,
+    True,
+    1,
+    (
+        MappedObject(Cia402.POSITION_ACTUAL_VALUE, 0, _I32),
+        MappedObject(Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 1, _I32),
+    ),
+)
 #: TPDO2: 6041h statusword (U16) + 6077h torque actual (I16) + 606Ch velocity actual (I32).
 TPDO2 = PdoSpec(
     2,
     True,
     1,
-    (MappedObject(0x6041, 0, _U16), MappedObject(0x6077, 0, _I16), MappedObject(0x606C, 0, _I32)),
+    (
+        MappedObject(Cia402.STATUSWORD, 0, _U16),
+        MappedObject(Cia402.TORQUE_ACTUAL_VALUE, 0, _I16),
+        MappedObject(Cia402.VELOCITY_ACTUAL_VALUE, 0, _I32),
+    ),
 )
 #: RPDO1: 6040h controlword (U16) + 60FFh target velocity (I32), asynchronous reception.
-RPDO1 = PdoSpec(1, False, 255, (MappedObject(0x6040, 0, _U16), MappedObject(0x60FF, 0, _I32)))
+RPDO1 = PdoSpec(
+    1,
+    False,
+    255,
+    (MappedObject(Cia402.CONTROLWORD, 0, _U16), MappedObject(Cia402.TARGET_VELOCITY, 0, _I32)),
+)
 
 LAYOUT: tuple[PdoSpec, ...] = (TPDO1, TPDO2, RPDO1)
 TPDO1_STRUCT = TPDO1.struct
@@ -140,11 +158,13 @@ class CobIds:
 class Signal(Enum):
     """A value the cycle takes from the frames of one SYNC (value: the CiA 402 object)."""
 
-    MOTOR_POSITION = 0x6064  # position actual value, drive position units
-    LOAD_POSITION = 0x60E4  # load measuring system (60E4h, a vendor object or a CiA 406 6004h)
-    STATUSWORD = 0x6041
-    TORQUE = 0x6077  # torque actual value, per mille of 6076h
-    MOTOR_VELOCITY = 0x606C  # velocity actual value, drive velocity units
+    MOTOR_POSITION = Cia402.POSITION_ACTUAL_VALUE  # position actual value, drive position units
+    LOAD_POSITION = (
+        Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE
+    )  # load measuring system (60E4h, a vendor object or a CiA 406 6004h)
+    STATUSWORD = Cia402.STATUSWORD
+    TORQUE = Cia402.TORQUE_ACTUAL_VALUE  # torque actual value, per mille of 6076h
+    MOTOR_VELOCITY = Cia402.VELOCITY_ACTUAL_VALUE  # velocity actual value, drive velocity units
 
 
 #: struct codes of the integer types a mapped object may have, by bit length and signedness.

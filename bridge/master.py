@@ -13,7 +13,9 @@ Sequence (docs/canopen_layout.md, CiA 301 PDO configuration procedure, CiA 402):
    (0604 0041 / 0604 0042) is left out and the layout planned again; the drive's other PDOs
    are switched off (objects the drive lacks are skipped);
 5. 6060h = 9 (cyclic synchronous velocity) or 3 (profile velocity, with 6083h/6084h opened),
-   checked in 6061h; 1017h producer heartbeat time;
+   checked in 6061h; 1017h producer heartbeat time; the drive's supervision of the bridge
+   (:mod:`bridge.supervision`: 1016h heartbeat consumer, 6007h, a set-point watchdog), each
+   object's value read first, to be written back at the end (:meth:`DriveMaster.restore`);
 6. a CiA 406 encoder node supplying the load position: its TPDO1 = 6004h on every SYNC,
    its heartbeat; NMT start of encoder and drive;
 7. CiA 402 state machine to Operation Enabled through 6040h/6041h (paths of
@@ -39,6 +41,9 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from virtual_bus.contract import (
     COB_ID_INVALID,
+    Cia301,
+    Cia402,
+    Cia406,
     NmtCommand,
     pdo_cob_id,
     pdo_comm_index,
@@ -46,6 +51,7 @@ from virtual_bus.contract import (
     tpdo_cob_id,
 )
 from virtual_bus.formats.axis import AxisKind
+from virtual_bus.formats.drive_profile import DriveProfile, ObjectKey
 
 from .adapt import (
     CANDIDATES,
@@ -61,8 +67,8 @@ from .adapt import (
 from .cycle import Drive402State, drive_state, enable_controlword
 from .errors import BridgeConfigError, DriveSetupError, DriveTimeoutError, SdoAbort
 from .layout import CycleLayout, Signal, check_node_id
-from .profile import DriveProfile
 from .scaling import LOAD_INCREMENTS_PER_UNIT, Scaling
+from .supervision import SUPERVISION_OBJECTS, Supervision, plan_supervision
 
 log = logging.getLogger("bridge")
 
@@ -121,6 +127,9 @@ class DriveInfo:
     scaling: Scaling
     encoder_id: int | None = None
     notes: tuple[str, ...] = ()
+    #: the drive's supervision of the bridge as configured, and the values it replaced
+    supervision: Supervision | None = None
+    restore: tuple[tuple[ObjectKey, bytes], ...] = ()
 
 
 #: SDO abort codes that mean "this object / sub-index is not there".
@@ -153,8 +162,20 @@ class DriveMaster:
         *,
         profile: DriveProfile | None = None,
         load_increments_per_unit: float = LOAD_INCREMENTS_PER_UNIT[AxisKind.LINEAR],
+        bridge_id: int | None = None,
+        heartbeat_ms: int = 0,
+        heartbeat_now: Callable[[], None] | None = None,
     ) -> None:
         self.drive = drive
+        #: the bridge's node-ID and heartbeat period (1017h): the drive is set to watch them
+        #: (None: no supervision planned, e.g. an encoder node)
+        self.bridge_id = bridge_id
+        self.heartbeat_ms = heartbeat_ms
+        #: sends the bridge's heartbeat at once: the drive's consumer starts watching with it
+        self.heartbeat_now = heartbeat_now
+        self.supervision: Supervision | None = None
+        #: (object, value before the start-up wrote it) of the supervision objects
+        self.restored: tuple[tuple[ObjectKey, bytes], ...] = ()
         self.setup = setup
         self.profile = profile or DriveProfile()
         self.load_increments_per_unit = load_increments_per_unit
@@ -244,7 +265,7 @@ class DriveMaster:
         said = False
         while True:
             try:
-                self.read(0x1000, 0, " (device type)")
+                self.read(Cia301.DEVICE_TYPE, 0, " (device type)")
                 return
             except DriveTimeoutError:
                 pass
@@ -262,17 +283,28 @@ class DriveMaster:
 
     def read_facts(self) -> DriveFacts:
         """Step 2 of the module docstring: reads only, nothing is written."""
-        device_type = self._u32(0x1000, 0)  # first: a node that is not there times out here
-        vendor_id, product_code = self._u32(0x1018, 1), self._u32(0x1018, 2)
+        device_type = self._u32(
+            Cia301.DEVICE_TYPE, 0
+        )  # first: a node that is not there times out here
+        vendor_id, product_code = self._u32(Cia301.IDENTITY, 1), self._u32(Cia301.IDENTITY, 2)
         objects: dict[tuple[int, int], bytes] = {}
-        keys = list(CANDIDATES)
-        if self.profile.load_object is not None:
-            keys.append(self.profile.load_object)
+        keys = [*CANDIDATES, *SUPERVISION_OBJECTS]
+        for extra in (self.profile.load_object, self.profile.setpoint_timeout_object):
+            if extra is not None:
+                keys.append(extra)
         for key in keys:
             raw = self.try_read(*key)
             if raw is not None:
                 objects[key] = raw
-        modes_raw = self.try_read(0x6502, 0, " (supported drive modes)")
+        modes_raw = self.try_read(Cia402.SUPPORTED_DRIVE_MODES, 0, " (supported drive modes)")
+        entries = self.profile.heartbeat_consumer_entries
+        if entries is None:
+            raw_count = objects.get(SUPERVISION_OBJECTS[0])
+            entries = raw_count[0] if raw_count else 0
+        for sub in range(1, min(entries, 127) + 1):  # the 1016h entries: which one is free
+            raw = self.try_read(SUPERVISION_OBJECTS[0][0], sub, " (consumer heartbeat time)")
+            if raw is not None:
+                objects[(SUPERVISION_OBJECTS[0][0], sub)] = raw
         return DriveFacts(
             device_type=device_type,
             vendor_id=vendor_id,
@@ -330,17 +362,19 @@ class DriveMaster:
 
     def set_mode(self, mode: VelocityMode) -> int:
         """6060h = ``mode``, waiting for 6061h to show it."""
-        self.write(0x6060, 0, _I8.pack(mode), " (modes of operation)")
+        self.write(Cia402.MODES_OF_OPERATION, 0, _I8.pack(mode), " (modes of operation)")
         deadline = self._wall() + self.setup.state_timeout_s
         while True:
-            shown = _I8.unpack(self.read(0x6061, 0, " (modes of operation display)")[:1])[0]
+            shown = _I8.unpack(
+                self.read(Cia402.MODES_OF_OPERATION_DISPLAY, 0, " (modes of operation display)")[:1]
+            )[0]
             if shown == mode:
                 return shown
             if self._wall() > deadline:
                 raise DriveTimeoutError(
                     f"drive {self.drive.id}: 6061h shows mode {shown}, not {int(mode)} "
                     f"({mode.name}), {self.setup.state_timeout_s:g} s after 6060h = {int(mode)}",
-                    index=0x6061,
+                    index=Cia402.MODES_OF_OPERATION_DISPLAY,
                     subindex=0,
                 )
             self._sleep(0.005)
@@ -352,7 +386,10 @@ class DriveMaster:
         """Profile velocity: 6083h/6084h at the profile's ramp or the UNSIGNED32 maximum so
         that the drive follows the set points (its own ramp stays the limit)."""
         value = self.profile.ramp or 0xFFFF_FFFF
-        for index, name in ((0x6083, "profile acceleration"), (0x6084, "profile deceleration")):
+        for index, name in (
+            (Cia402.PROFILE_ACCELERATION, "profile acceleration"),
+            (Cia402.PROFILE_DECELERATION, "profile deceleration"),
+        ):
             if not facts.has((index, 0)):
                 continue
             try:
@@ -368,7 +405,7 @@ class DriveMaster:
                 raise
 
     def statusword(self) -> int:
-        return _U16.unpack(self.read(0x6041, 0, " (statusword)")[:2])[0]
+        return _U16.unpack(self.read(Cia402.STATUSWORD, 0, " (statusword)")[:2])[0]
 
     def enable_operation(self) -> int:
         """Walk the CiA 402 state machine to Operation Enabled; return the final statusword."""
@@ -379,14 +416,16 @@ class DriveMaster:
             if state is Drive402State.OPERATION_ENABLED:
                 return sw
             cw = enable_controlword(state, last_cw)
-            self.write(0x6040, 0, _U16.pack(cw), f" (controlword, drive in {state.value})")
+            self.write(
+                Cia402.CONTROLWORD, 0, _U16.pack(cw), f" (controlword, drive in {state.value})"
+            )
             last_cw = cw
             self._wait_for_change(state)
         sw = self.statusword()
         raise DriveTimeoutError(
             f"drive {self.drive.id}: not in Operation Enabled after the CiA 402 sequence "
             f"(statusword 0x{sw:04X}, {drive_state(sw).value})",
-            index=0x6041,
+            index=Cia402.STATUSWORD,
             subindex=0,
         )
 
@@ -399,7 +438,7 @@ class DriveMaster:
         raise DriveTimeoutError(
             f"drive {self.drive.id}: statusword stays in {before.value} for "
             f"{self.setup.state_timeout_s:g} s after the controlword",
-            index=0x6041,
+            index=Cia402.STATUSWORD,
             subindex=0,
         )
 
@@ -411,7 +450,11 @@ class DriveMaster:
             if known is None:
                 known = frozenset(
                     k
-                    for k in (*facts.objects, (0x6064, 0), (0x6041, 0))
+                    for k in (
+                        *facts.objects,
+                        (Cia402.POSITION_ACTUAL_VALUE, 0),
+                        (Cia402.STATUSWORD, 0),
+                    )
                     if k not in self._unmappable
                 )
             profile = replace(profile, mappable=known - self._unmappable)
@@ -425,6 +468,8 @@ class DriveMaster:
         self.drive.nmt.send_command(NmtCommand.ENTER_PRE_OPERATIONAL)
         facts = self.read_facts()
         the_plan = self.plan(facts)
+        # planned before anything is written: a profile naming what the drive lacks stops here
+        supervision = None if self.bridge_id is None else self.plan_supervision(facts)
         while True:  # each round leaves out one more object the drive refused to map
             try:
                 for spec in the_plan.tpdos:
@@ -445,8 +490,54 @@ class DriveMaster:
         if the_plan.mode is VelocityMode.PROFILE_VELOCITY:
             self.open_ramps(facts)
         mode = self.set_mode(the_plan.mode)
-        self.write(0x1017, 0, _U16.pack(self.setup.heartbeat_producer_ms), " (producer heartbeat)")
+        self.write(
+            Cia301.PRODUCER_HEARTBEAT_TIME,
+            0,
+            _U16.pack(self.setup.heartbeat_producer_ms),
+            " (producer heartbeat)",
+        )
+        if supervision is not None:
+            self.configure_supervision(supervision)
+            if self.heartbeat_now is not None and supervision.consumer_ms is not None:
+                # CiA 301: the watch starts with the first heartbeat after the entry was
+                # written; one now, before the drive is enabled
+                self.heartbeat_now()
         return the_plan, facts, mode
+
+    def plan_supervision(self, facts: DriveFacts) -> Supervision:
+        """:func:`bridge.supervision.plan_supervision` for this bridge."""
+        assert self.bridge_id is not None
+        return plan_supervision(
+            facts, self.profile, self.drive.id, self.bridge_id, self.heartbeat_ms
+        )
+
+    def configure_supervision(self, supervision: Supervision) -> None:
+        """Write the drive's supervision of the bridge, each object's value read first
+        (:attr:`restored`, for :meth:`restore`)."""
+        restored = []
+        for write in supervision.writes:
+            before = self.try_read(*write.key)
+            if before:
+                restored.append((write.key, before))
+            self.write(*write.key, write.data, f" ({write.what})")
+        self.supervision = supervision
+        self.restored = tuple(restored)
+        for line in supervision.describe():
+            log.info("drive %d: %s", self.drive.id, line)
+        for note in supervision.notes:
+            log.warning("drive %d: %s", self.drive.id, note)
+
+    def restore(self, restored: tuple[tuple[ObjectKey, bytes], ...]) -> list[str]:
+        """Write back the values the supervision objects had before the start-up (the
+        bridge ends in order: nothing watches it any more); the objects not written back,
+        each with why (an empty list: all)."""
+        failed = []
+        for key, data in restored:
+            try:
+                self.write(*key, data, " (as it was before the start-up)")
+            except DriveSetupError as exc:
+                failed.append(str(exc))
+        return failed
 
     def configure_encoder(self, encoder_id: int) -> None:
         """CiA 406 encoder node: TPDO1 = 6004h position value on every SYNC, heartbeat."""
@@ -461,24 +552,29 @@ class DriveMaster:
         encoder.sdo.MAX_RETRIES = self.setup.sdo_retries
         sub = DriveMaster(encoder, self.setup, self._sleep, self._wall)
         encoder.nmt.send_command(NmtCommand.ENTER_PRE_OPERATIONAL)
-        device_type = sub._u32(0x1000, 0)
+        device_type = sub._u32(Cia301.DEVICE_TYPE, 0)
         if device_type is not None and device_type & 0xFFFF != 406:
             raise DriveSetupError(
                 f"node {encoder_id}: 1000h device type 0x{device_type:08X} is not a CiA 406 "
                 "encoder (low word 406 = 0x196); check load.encoder_id",
-                index=0x1000,
+                index=Cia301.DEVICE_TYPE,
                 subindex=0,
             )
         if sub.try_read(*ENCODER_POSITION) is None:
             raise DriveSetupError(
                 f"node {encoder_id}: no 6004h position value: not a CiA 406 encoder",
-                index=0x6004,
+                index=Cia406.POSITION_VALUE,
                 subindex=0,
             )
         position = Item(Signal.LOAD_POSITION, ENCODER_POSITION, "u32")
         tpdo = PdoPlan(1, tpdo_cob_id(1, encoder_id), True, 1, (position,))
         sub.configure_pdo(tpdo)
-        sub.write(0x1017, 0, _U16.pack(self.setup.heartbeat_producer_ms), " (producer heartbeat)")
+        sub.write(
+            Cia301.PRODUCER_HEARTBEAT_TIME,
+            0,
+            _U16.pack(self.setup.heartbeat_producer_ms),
+            " (producer heartbeat)",
+        )
         self.transfers += sub.transfers
         encoder.nmt.send_command(NmtCommand.START)
 
@@ -510,4 +606,6 @@ class DriveMaster:
             the_plan.scaling,
             the_plan.encoder_id,
             the_plan.notes,
+            self.supervision,
+            self.restored,
         )

@@ -8,13 +8,16 @@ thread that bypasses the bridge's bus log, and lets the SDO server answer in Sto
 replaces it:
 
 - the state starts Operational (the bridge starts its network as NMT master and produces
-  SYNC from the start); start / stop / enter pre-operational switch it; reset node and reset
-  communication send the boot-up message and enter Pre-operational (CiA 301 figure 48; the
-  bridge does not restart its application, its parameters stay);
+  SYNC from the start); :meth:`BridgeNmt.boot` announces it with the boot-up message when
+  the bridge starts (so a drive that watched a bridge before sees it restarted, and a
+  watching node -- CANopenNode, Lely -- sees it come); start / stop / enter pre-operational
+  switch it; reset node and reset communication send the boot-up message and enter
+  Pre-operational (CiA 301 figure 48; the bridge does not restart its application, its
+  parameters stay);
 - the heartbeat (0x700 + node-ID, one byte: the state) is sent by :meth:`BridgeNmt.tick` from
   the bridge's own thread through the bridge's port (so the bus log has it), every 1017h ms
   of the clock ``tick`` is given (the loop's pacer; the service thread's wall clock between
-  runs); 1017h = 0 (the default) sends none;
+  runs); default 100 ms, 1017h = 0 sends none;
 - ``on_state(new)`` lets the node react: the loop stops the axis when the bridge leaves
   Operational while the axis is enabled (docs/peers.md).
 """
@@ -60,6 +63,7 @@ class BridgeNmt:
         self._can_id = HEARTBEAT_BASE + node.id
         self._period_s = 0.0
         self._due_s: float | None = None
+        self._wall_due_s: float | None = None
         self.heartbeats_sent = 0
         # LocalNode's NmtSlave handles 1017h writes with a python-can periodic task; the
         # bridge sends its heartbeat itself, so that handler goes with the NmtSlave
@@ -77,6 +81,22 @@ class BridgeNmt:
             return
         if command is not None:
             self.execute(command)
+
+    def boot(self) -> None:
+        """The boot-up message (0x700 + node-ID, 00h) of a bridge that starts; the heartbeat
+        period starts anew with the next tick."""
+        self._send(self._can_id, bytes([NmtState.INITIALISING]))
+        self._due_s = None
+
+    def beat(self) -> None:
+        """A heartbeat now (when 1017h is not 0), the period starting anew: CiA 301 lets a
+        consumer start watching only with the first heartbeat it receives, so the start-up
+        sends one right after it configured the drive's consumer, before it enables the
+        drive (a bridge killed within the first period would otherwise never be watched)."""
+        if self._period_s > 0.0:
+            self._send(self._can_id, bytes([self.state]))
+            self.heartbeats_sent += 1
+            self._due_s = None
 
     def execute(self, command: NmtCommand) -> None:
         if command in (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION):
@@ -105,13 +125,22 @@ class BridgeNmt:
         if index == HEARTBEAT_PRODUCER:
             self.set_period_ms(struct.unpack("<H", bytes(data))[0])
 
+    @property
+    def period_ms(self) -> int:
+        """The heartbeat period in force (1017h, ms; 0: none)."""
+        return round(self._period_s * 1000.0)
+
     def set_period_ms(self, period_ms: int) -> None:
         self._period_s = period_ms / 1000.0
         self._due_s = None
 
-    def tick(self, now_s: float) -> None:
+    def tick(self, now_s: float, wall_s: float | None = None) -> None:
         """Send the heartbeat if one is due at ``now_s`` (seconds of any clock; called at
-        least every period, the loop's cycle or the service thread's few ms)."""
+        least every period, the loop's cycle or the service thread's few ms). ``wall_s``: a
+        second clock (lockstep: the wall clock beside the simulated time): the heartbeat
+        also goes out when a period of it has passed, so that a drive watching on either
+        clock -- a lockstep drive on SYNC time, a real-time one on its own -- sees it in
+        time however fast the loop runs."""
         period = self._period_s
         if period <= 0.0:
             return
@@ -120,9 +149,13 @@ class BridgeNmt:
             # the first tick, or another clock (the loop's pacer after the service thread's
             # wall clock, or back): the period starts now
             self._due_s = now_s + period
+            self._wall_due_s = None if wall_s is None else wall_s + period
             return
-        if now_s < due:
+        wall_due = self._wall_due_s
+        wall_late = wall_s is not None and wall_due is not None and wall_s >= wall_due
+        if now_s < due and not wall_late:
             return
-        self._due_s = due + period
+        self._due_s = due + period if now_s >= due else now_s + period
+        self._wall_due_s = None if wall_s is None else wall_s + period
         self._send(self._can_id, bytes([self.state]))
         self.heartbeats_sent += 1

@@ -52,6 +52,7 @@ from virtual_bus.contract import (
     sdo_rx_cob_id,
 )
 from virtual_bus.formats.axis import AxisKind
+from virtual_bus.formats.drive_profile import DriveProfile
 from virtual_bus.frame_guard import FrameFault, FrameGuard
 from virtual_bus.framing import (
     NOTHING,
@@ -72,7 +73,6 @@ from .nmt import BridgeNmt
 from .objects import ObjectServer, PdoCounters
 from .od import DEFAULT_DRIVE_ID, DEFAULT_EDS_PATH, DEFAULT_NODE_ID, load_od
 from .params import BridgeParams
-from .profile import DriveProfile
 from .recorder import BusLog, TraceRecorder
 from .scaling import Scaling
 from .store import ParameterStore
@@ -149,7 +149,8 @@ class BridgeConfig:
     """Identity of the bridge on the bus, how it starts the drive, where it stores its
     parameters (1010h; loaded when the bridge is built, over the given params).
 
-    profile: the drive profile (:mod:`bridge.profile`, ``--drive-profile``); ``None``: the
+    profile: the drive profile (:mod:`virtual_bus.formats.drive_profile`,
+    ``--drive-profile``); ``None``: the
     start-up adapts to what the drive reports, with the contract's scaling as the default.
     """
 
@@ -206,8 +207,13 @@ class Bridge:
         busy_poll: bool = False,
         compiled: bool | None = None,
         cpu: Callable[[], float] = time.thread_time,
+        wall_heartbeat: bool = True,
     ) -> None:
         self.config = config
+        #: False: every node watching the bridge runs on the loop's simulated time (an
+        #: in-process drive in lockstep), so the heartbeat follows that time only and a
+        #: recording is the same frame for frame whatever the host's speed
+        self.wall_heartbeat = wall_heartbeat
         self.pacer = pacer
         self.recorder = recorder
         self.bus_log = bus_log
@@ -272,6 +278,7 @@ class Bridge:
                 f"service_guard_fraction = {service_guard_fraction!r}: must be in [0, 1)"
             )
         self.overrun_limit = overrun_limit
+        self._lockstep = pacer.mode is TimeMode.LOCKSTEP
         self.service_guard_s = service_guard_fraction * pacer.cycle_s
         self.gc_control = gc_control
         self.busy_poll = busy_poll
@@ -375,7 +382,7 @@ class Bridge:
     def serving(self) -> Iterator[None]:
         """Feed received frames to canopen from a thread (SDO client/server while not
         cycling; the heartbeat on the wall clock); the thread ends when the block ends."""
-        idle = lambda: self.nmt.tick(self._wall())  # noqa: E731
+        idle = (lambda: self.nmt.tick(self._wall())) if self.wall_heartbeat else None
         with pumping(self.port.recv, self.dispatch, "bridge-service", idle):
             yield
 
@@ -398,8 +405,11 @@ class Bridge:
 
     # --- start-up ---------------------------------------------------------------------------
     def start(self, configure_drive: bool = True) -> DriveInfo | None:
-        """Configure the drive over SDO and bring it to Operation Enabled (blocking), then make
-        the controller ready to enable the axis at the first cycle."""
+        """Announce the bridge (its boot-up message, then its heartbeat), configure the drive
+        over SDO -- its supervision of the bridge included (bridge.supervision) -- and bring
+        it to Operation Enabled (blocking), then make the controller ready to enable the
+        axis at the first cycle."""
+        self.nmt.boot()  # a drive that watched a bridge before sees this one restarted
         if configure_drive:
             with self.serving():
                 master = DriveMaster(
@@ -407,6 +417,9 @@ class Bridge:
                     self.config.drive_setup,
                     profile=self.config.profile,
                     load_increments_per_unit=self.scaling.load_increments_per_unit,
+                    bridge_id=self.config.node_id,
+                    heartbeat_ms=self.nmt.period_ms,
+                    heartbeat_now=self.nmt.beat,
                 )
                 info = master.run()
             self.drive_info = info
@@ -582,6 +595,16 @@ class Bridge:
             )
         return host
 
+    def keep_clock(self) -> None:
+        """SYNC and the RPDO as they stand, without a cycle (nothing is received): the stop
+        path asks a drive over SDO meanwhile (bridge.halt), and a drive whose clock is SYNC
+        runs its ramp only on SYNC."""
+        for frame in (self._sync_frame, self._rpdo_frame):
+            try:
+                frame.send()
+            except (can.CanError, OSError) as exc:
+                self._send_failed(frame, exc)
+
     def drain(self) -> None:
         """Handle the frames already received, outside any cycle (TPDOs count as late)."""
         self._between_cycles(None)
@@ -718,7 +741,13 @@ class Bridge:
                 0.0 if due is None else sync_wall - due, now - sync_wall, now - inputs_wall, work
             )
         self._record_pending = self.recorder is not None
-        self.nmt.tick(now_s)  # the heartbeat (1017h), on the loop's clock
+        # the heartbeat (1017h): on the wall clock in real time, as between runs (no gap);
+        # in lockstep on the simulated time and the wall clock, whichever is due first (a
+        # drive watches on SYNC time or on its own clock, bridge.nmt)
+        if self._lockstep:
+            self.nmt.tick(now_s, wall() if self.wall_heartbeat else None)
+        else:
+            self.nmt.tick(wall())
         self._k = k + 1
 
     def run(self, cycles: int | None = None, until: Callable[[Bridge], bool] | None = None) -> int:

@@ -24,6 +24,7 @@ from pathlib import Path
 import canopen
 from canopen.objectdictionary import datatypes as dt
 
+from virtual_bus.contract import Cia301
 from virtual_bus.sdo_server import apply_real_limits
 from virtual_bus.shipped import BRIDGE_EDS
 
@@ -117,9 +118,19 @@ R, U8, U16, U32, I32, BOOL, VS = (
 RO, RW, WO, CONST = Access.RO, Access.RW, Access.WO, Access.CONST
 
 # --- indices used by the code ----------------------------------------------------------------
-DEVICE_TYPE, ERROR_REGISTER, COB_ID_SYNC, CYCLE_PERIOD = 0x1000, 0x1001, 0x1005, 0x1006
-DEVICE_NAME, HEARTBEAT_CONSUMER, HEARTBEAT_PRODUCER, IDENTITY = 0x1008, 0x1016, 0x1017, 0x1018
-STORE_PARAMETERS, RESTORE_DEFAULTS = 0x1010, 0x1011
+DEVICE_TYPE, ERROR_REGISTER, COB_ID_SYNC, CYCLE_PERIOD = (
+    Cia301.DEVICE_TYPE,
+    Cia301.ERROR_REGISTER,
+    Cia301.COB_ID_SYNC,
+    Cia301.COMMUNICATION_CYCLE_PERIOD,
+)
+DEVICE_NAME, HEARTBEAT_CONSUMER, HEARTBEAT_PRODUCER, IDENTITY = (
+    Cia301.MANUFACTURER_DEVICE_NAME,
+    Cia301.CONSUMER_HEARTBEAT_TIME,
+    Cia301.PRODUCER_HEARTBEAT_TIME,
+    Cia301.IDENTITY,
+)
+STORE_PARAMETERS, RESTORE_DEFAULTS = Cia301.STORE_PARAMETERS, Cia301.RESTORE_DEFAULT_PARAMETERS
 KV, REG_ENABLE, BETA_T, WINDOW_N, TV, TF, KR = range(0x2000, 0x2007)
 SPEED_LIMIT, FE_LIMIT, DISC_LIMIT, PDO_TOLERANCE, VELOCITY_FF = range(0x2007, 0x200C)
 TARGET, FEED, ACCEL, MOVE_STATUS, POSITION_LIMITS = range(0x2010, 0x2015)
@@ -140,9 +151,10 @@ STORE_ON_COMMAND = 0x0000_0001
 #: Default software position limits (2014h), load units: +-2 m covers the INTEGER32 nm range
 #: of 2010h (+-2.147 m).
 DEFAULT_POSITION_LIMIT = 2.0
-#: Heartbeat producer time 1017h default, ms: 0 = off (CiA 301); a tool that supervises the
-#: bridge sets it (bridge.nmt).
-DEFAULT_HEARTBEAT_MS = 0
+#: Heartbeat producer time 1017h default, ms (CiA 301; 0 = off): the drive's heartbeat
+#: consumer (1016h, configured by the start-up) and any watching node (CANopenNode, Lely) see
+#: the bridge alive by it (bridge.nmt, bridge.supervision).
+DEFAULT_HEARTBEAT_MS = 100
 #: The smallest positive REAL32 (2^-149): the LowLimit of a range open at 0, "(0, x]".
 SMALLEST_REAL32 = 2.0**-149
 #: Load-scale increments per load unit the EDS's rules assume (a linear axis: nm per m; a
@@ -285,7 +297,8 @@ OBJECTS: tuple[Entry | Group, ...] = (
         RW,
         DEFAULT_HEARTBEAT_MS,
         "ms",
-        "the bridge's heartbeat (its NMT state) every so many ms; 0: off",
+        "the bridge's heartbeat (its NMT state) every so many ms; 0: off (then the drive "
+        "cannot watch the bridge: the start-up configures its 1016h from this)",
     ),
     Group(
         IDENTITY,

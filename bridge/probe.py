@@ -8,12 +8,17 @@ that from the drive's EDS (its ``PDOMapping`` flags) and names the manufacturer 
 could carry the load position (:mod:`bridge.candidates`); CiA 406 encoder nodes are found
 among the nodes heard on the bus and ``--scan`` node-IDs.
 
-Then it prints the load-scale candidates, the start-up's plan for the profile it writes --
-or **every** problem the start-up would stop on, each with its object, what the drive showed
-and the profile key that replaces it (one round of commissioning, not one per problem). The
-written profile is consistent with what the probe found: its load source is the best usable
-candidate (never an object the EDS marks not mappable). Exit 0 either way (the profile is
-for the user to complete); 1 when the drive does not answer, 2 for bad arguments.
+Then it prints the load-scale candidates, how the drive can supervise the bridge (1016h
+heartbeat consumer, 6007h abort connection option code, a set-point watchdog;
+:mod:`bridge.supervision`) and what the start-up would write for it, the start-up's plan for
+the profile it writes -- or **every** problem the start-up would stop on, each with its
+object, what the drive showed and the profile key that replaces it (one round of
+commissioning, not one per problem). The written profile is consistent with what the probe
+found: its load source is the best usable candidate (never an object the EDS marks not
+mappable). ``--eds`` is checked before the bus is opened (a file that is not an EDS: one
+line, exit 2). Exit 0 when the start-up would run the drive; 1 when it would stop (the
+profile is written all the same, for the user to complete) or the drive does not answer;
+2 for bad arguments.
 """
 
 from __future__ import annotations
@@ -29,8 +34,27 @@ from canopen.objectdictionary import ODVariable
 
 from cmdline import cli
 from virtual_bus import BusConfig, open_bus
-from virtual_bus.contract import TPDO_MAPPING_BASE, NmtCommand, pdo_comm_index, pdo_mapping_index
+from virtual_bus.atomic import write_atomic
+from virtual_bus.contract import (
+    ABORT_CONNECTION_INDEX,
+    MANUFACTURER_AREA,
+    TPDO_MAPPING_BASE,
+    Cia301,
+    Cia402,
+    NmtCommand,
+    pdo_comm_index,
+    pdo_mapping_index,
+)
 from virtual_bus.formats.axis import AxisKind
+from virtual_bus.formats.drive_profile import (
+    DriveProfile,
+    LoadSource,
+    ModeChoice,
+    ObjectKey,
+    format_key,
+    render_profile,
+)
+from virtual_bus.formats.eds import check_eds_file
 
 from . import candidates as cand
 from .adapt import (
@@ -45,8 +69,9 @@ from .errors import BridgeConfigError, DriveSetupError
 from .layout import check_node_id
 from .master import DriveMaster, DriveSetup
 from .node import pumping
-from .profile import DriveProfile, LoadSource, ModeChoice, ObjectKey, format_key, render_profile
+from .od import DEFAULT_HEARTBEAT_MS, DEFAULT_NODE_ID
 from .scaling import LOAD_INCREMENTS_PER_UNIT
+from .supervision import Supervision, consumer_entries, plan_supervision
 
 NAME = "probe"
 HELP = "read a connected drive over SDO: what it supports; --out writes a drive profile"
@@ -74,11 +99,16 @@ COMMISSIONING_FIELDS = (
     "position_increments_per_rev",
     "velocity_units_per_rev_s",
     "ramp",
+    "setpoint_timeout_object",
+    "setpoint_timeout",
+    "setpoint_timeout_type",
 )
 
 
 def import_eds(path: Path, node_id: int) -> canopen.ObjectDictionary:
-    """The drive's EDS (BridgeConfigError, one line, when it cannot be read)."""
+    """The drive's EDS (EdsFileError when the file is not an EDS at all, BridgeConfigError
+    when python canopen cannot import it; one line each)."""
+    check_eds_file(path)
     try:
         return canopen.import_od(str(path), node_id)
     except Exception as exc:  # the EDS parser raises many kinds
@@ -89,14 +119,14 @@ def mappable_from_eds(path: Path, node_id: int) -> frozenset[ObjectKey]:
     """The bridge's candidate objects and the drive's manufacturer INTEGER32/UNSIGNED32
     objects (candidates for a vendor load position) that the EDS marks PDO-mappable."""
     od = import_eds(path, node_id)
-    wanted = set(CANDIDATES) | {(0x60E4, s) for s in range(0xFF)}
+    wanted = set(CANDIDATES) | {(Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, s) for s in range(0xFF)}
     found: set[ObjectKey] = set()
     for index in od:
         obj = od[index]
         variables = [obj] if isinstance(obj, ODVariable) else [obj[s] for s in obj]
         for var in variables:
             key = (var.index, var.subindex)
-            vendor = 0x2000 <= var.index <= 0x5FFF and len(var) == 32
+            vendor = var.index in MANUFACTURER_AREA and len(var) == 32
             if var.pdo_mappable and (key in wanted or vendor):
                 found.add(key)
     return frozenset(found)
@@ -130,7 +160,8 @@ def profile_from_facts(
         position = None
     entries = [p.entries for p in facts.tpdos if p.entries]
     rpdos = [p.number for p in facts.rpdos]
-    rated = None if facts.u32((0x6076, 0)) else 0
+    rated = None if facts.u32((Cia402.MOTOR_RATED_TORQUE, 0)) else 0
+    has_6007 = facts.has((ABORT_CONNECTION_INDEX, 0))
     return DriveProfile(
         name=name,
         vendor_id=facts.vendor_id,
@@ -146,6 +177,8 @@ def profile_from_facts(
         encoder_id=encoder_id,
         position_increments_per_rev=position,
         rated_torque_mnm=rated,
+        heartbeat_consumer_entries=consumer_entries(facts, DriveProfile()),
+        abort_connection_option=3 if has_6007 else None,
     )
 
 
@@ -180,11 +213,14 @@ def describe(facts: DriveFacts) -> str:
         )
     present = ", ".join(format_key(k) for k in sorted(facts.objects))
     lines.append(f"objects present: {present}")
-    for index, name in ((0x608F, "position encoder resolution"), (0x6091, "gear ratio")):
+    for index, name in (
+        (Cia402.POSITION_ENCODER_RESOLUTION, "position encoder resolution"),
+        (Cia402.GEAR_RATIO, "gear ratio"),
+    ):
         ratio = facts.ratio(index)
         if ratio is not None:
             lines.append(f"{index:04X}h {name}: {ratio[0]} / {ratio[1]}")
-    rated = facts.u32((0x6076, 0))
+    rated = facts.u32((Cia402.MOTOR_RATED_TORQUE, 0))
     lines.append(
         "6076h motor rated torque: "
         + (f"{rated} mN·m" if rated else "0 or absent (torque shown in per mille)")
@@ -206,14 +242,14 @@ SCAN_TIMEOUT_S = 0.05
 
 def _more_60e4(master: DriveMaster, facts: DriveFacts) -> DriveFacts:
     """60E4h sub-indices 02h.. the drive has (an array's sub-index 0 counts them)."""
-    sub0 = facts.objects.get((0x60E4, 0))
+    sub0 = facts.objects.get((Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 0))
     if sub0 is None or len(sub0) != 1 or sub0[0] < 2:
         return facts
     objects = dict(facts.objects)
     for sub in range(2, min(sub0[0], 8) + 1):
-        raw = master.try_read(0x60E4, sub)
+        raw = master.try_read(Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, sub)
         if raw is not None:
-            objects[(0x60E4, sub)] = raw
+            objects[(Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, sub)] = raw
     return replace(facts, objects=objects)
 
 
@@ -224,7 +260,7 @@ def _is_encoder(network: canopen.Network, node_id: int, setup: DriveSetup) -> bo
     try:
         master = DriveMaster(node, replace(setup, sdo_timeout_s=SCAN_TIMEOUT_S, sdo_retries=1))
         with contextlib.suppress(DriveSetupError):
-            raw = master.try_read(0x1000, 0)
+            raw = master.try_read(Cia301.DEVICE_TYPE, 0)
             return raw is not None and len(raw) >= 2 and int.from_bytes(raw[:2], "little") == 406
         return False
     finally:
@@ -388,6 +424,27 @@ def static_mapping(
     return found
 
 
+def describe_supervision(facts: DriveFacts, supervision: Supervision | None) -> list[str]:
+    """How the drive can watch the bridge, and what the start-up would write for it."""
+    entries = consumer_entries(facts, DriveProfile())
+    abort = facts.objects.get((ABORT_CONNECTION_INDEX, 0))
+    lines = [
+        "supervision of the bridge (if the bridge dies, the drive stops by these):",
+        "  1016h heartbeat consumer: "
+        + (f"{entries} entr{'y' if entries == 1 else 'ies'}" if entries else "absent"),
+        "  6007h abort connection option code: "
+        + (
+            f"present (now {int.from_bytes(abort[:2], 'little', signed=True)})"
+            if abort
+            else "absent"
+        ),
+    ]
+    if supervision is not None:
+        lines += [f"  the start-up writes {line}" for line in supervision.describe()]
+        lines += [f"  note: {note}" for note in supervision.notes]
+    return lines
+
+
 def report(
     result: ProbeResult | DriveFacts,
     drive_id: int,
@@ -396,8 +453,9 @@ def report(
     out: Path | None,
     od: canopen.ObjectDictionary | None = None,
 ) -> int:
-    """Print what was found, the load-scale candidates and the start-up's plan -- or every
-    problem it would stop on; write the profile to ``out``."""
+    """Print what was found, the load-scale candidates, the drive's supervision of the bridge
+    and the start-up's plan -- or every problem it would stop on; write the profile to
+    ``out``. 0: the start-up would run the drive; 1: it would stop."""
     if isinstance(result, DriveFacts):
         result = ProbeResult(result)
     facts = result.facts
@@ -417,12 +475,22 @@ def report(
             + "; --scan looks for CiA 406 encoder nodes)"
         )
     fixed = static_mapping(od, profile, drive_id) if od is not None else []
+    problems: list[DriveSetupError] = []
+    supervision = None
+    try:  # the bridge's defaults: node-ID 1, heartbeat 100 ms (1017h)
+        supervision = plan_supervision(
+            facts, profile, drive_id, DEFAULT_NODE_ID, DEFAULT_HEARTBEAT_MS
+        )
+    except DriveSetupError as exc:
+        problems.append(exc)
+    for line in describe_supervision(facts, supervision):
+        print(line)
     try:
         the_plan = plan(facts, profile, drive_id, LOAD_INCREMENTS_PER_UNIT[AxisKind.LINEAR])
-        if fixed:
-            raise fixed[0]
+        if fixed or problems:
+            raise (fixed or problems)[0]
     except DriveSetupError as exc:
-        problems = [*(exc.problems or (exc,)), *(p for p in fixed if p is not exc)]
+        problems = [*(exc.problems or (exc,)), *(p for p in [*fixed, *problems] if p is not exc)]
         print(f"start-up would stop: {len(problems)} problem(s), all of them:")
         for i, problem in enumerate(problems, start=1):
             print(f"  {i}. {problem}")
@@ -439,6 +507,6 @@ def report(
         )
         if chosen is not None:
             comments += (f"load source: the best candidate the probe saw, {chosen.describe()}",)
-        out.write_text(render_profile(profile, comments), encoding="utf-8")
+        write_atomic(out, render_profile(profile, comments))
         print(f"wrote {out}")
-    return 0
+    return 1 if problems else 0

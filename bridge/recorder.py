@@ -4,14 +4,17 @@
   (time, position_reference, speed_setpoint, motor_position, motor_speed, load_position,
   motor_torque, disturbance when known) plus beta, lambda and the loop's own values
   (:data:`EXTRA_COLUMNS`); recorded after the set point has gone out and written through
-  :class:`virtual_bus.formats.trace.TraceWriter` in whole blocks of ``flush_rows`` rows (a killed
-  recorder leaves a file readable up to its last block); optionally kept in memory for
-  :meth:`TraceRecorder.trace`.
+  :class:`virtual_bus.formats.trace.TraceWriter` in blocks of ``flush_rows`` rows (a killed
+  recorder leaves whole rows and at most a torn last row, which the readers drop); optionally
+  kept in memory for :meth:`TraceRecorder.trace`.
 * :class:`BusLog`: every frame sent or received, in ``candump -L`` format through python-can's
   :class:`can.io.CanutilsLogWriter`: wall-clock epoch timestamps from the first frame on
   (the SDO start-up too, so can-utils' ``log2asc`` / ``canplayer`` and a second log of the
   same bus line up), the interface name of the bus (:func:`log_channel`, at most 15
-  characters as a Linux interface name), flushed every ``flush_every`` frames.
+  characters as a Linux interface name), appended in blocks that end before every
+  ``flush_syncs``-th SYNC (:class:`virtual_bus.formats.records.RecordFile` with padding: no
+  frame line crosses a 4096-byte boundary of the file, so a kill at any moment leaves whole
+  lines that python-can and can-utils read).
 * :class:`WireOrderBus`: on a bus that hands a process its own frames back (SocketCAN with
   ``receive_own_messages``), the log in the order the wire carried the frames, as ``candump
   -L`` records it from another process.
@@ -19,6 +22,7 @@
 
 from __future__ import annotations
 
+import logging
 import re
 import threading
 import time
@@ -30,9 +34,13 @@ import can
 import numpy as np
 
 from virtual_bus import BusConfig, Interface
+from virtual_bus.contract import SYNC_COB_ID
+from virtual_bus.formats.records import RecordFile
 from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace, TraceWriter
 
 from .cycle import CycleController
+
+log = logging.getLogger("bridge")
 
 BASE_COLUMNS = (
     *RECORDED_COLUMNS,
@@ -43,6 +51,9 @@ BASE_COLUMNS = (
 #: and the motor-load difference since enable (load units), the bridge state (2104h value).
 EXTRA_COLUMNS = ("omega_s", "omega_c", "following_error", "motor_load_difference", "state")
 DEFAULT_FLUSH_ROWS = 100
+#: Frames a bus log holds back at most (~0.6 MB): more between two of its SYNC blocks (a bus
+#: without SYNC, a flood) are written at once.
+MAX_PENDING_FRAMES = 16384
 #: Linux IFNAMSIZ - 1: the longest interface name candump writes and log2asc reads back.
 MAX_IFNAME_CHARS = 15
 
@@ -53,7 +64,8 @@ class TraceRecorder:
     path: CSV file or None (memory only). keep: keep every row in memory for :meth:`trace`.
     disturbance: known disturbance per cycle (N·m at the motor, the spec's ``disturbance``
     column; rows beyond its end get 0), or None when the bridge cannot know it.
-    flush_rows: rows per block; a block reaches the file in one write (TraceWriter).
+    flush_rows: rows per block, appended to the file as one block (TraceWriter); the bus log
+    (:class:`BusLog`) writes blocks of as many SYNC cycles.
     """
 
     def __init__(
@@ -113,7 +125,7 @@ class TraceRecorder:
             self.flush()
 
     def flush(self) -> None:
-        """Write the rows recorded since the last flush to the file (one write)."""
+        """Append the rows recorded since the last flush to the file (one block)."""
         if self._keep and self._in_block:
             self._rows.append(self._block[: self._in_block].copy())
         self._in_block = 0
@@ -160,13 +172,35 @@ def log_channel(config: BusConfig) -> str:
     return cleaned
 
 
+class _Lines:
+    """What python-can's writer writes to: the lines of the block being collected."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def write(self, text: str) -> int:
+        self.lines.append(text)
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
 class BusLog:
     """candump-format log (python-can CanutilsLogWriter) of frames sent and received.
 
     ``clock`` gives the timestamp written for each frame (default ``time.time``: epoch
     seconds, what candump writes), ``channel`` the interface name written with every frame
-    (at most 15 characters, see :func:`log_channel`). Thread-safe (start-up runs a receive
-    thread).
+    (at most 15 characters, see :func:`log_channel`). The frames go to the file in blocks:
+    before every ``flush_syncs``-th SYNC frame (the first SYNC's too: the start-up's frames),
+    on :meth:`flush` and :meth:`close`, and when :data:`MAX_PENDING_FRAMES` wait. With the
+    trace recorder's blocks of as many rows, a log and a trace a kill leaves agree
+    (docs/bridge.md, "Recording"). A block that cannot be written (a full disk) is undone,
+    logged as an error, and the log stops there (``failed``): logging a frame never raises
+    into the loop that sends it. Thread-safe (start-up runs a receive thread).
     """
 
     def __init__(
@@ -174,7 +208,7 @@ class BusLog:
         path: str | Path,
         clock: Callable[[], float] = time.time,
         channel: str = "can0",
-        flush_every: int = 500,
+        flush_syncs: int = DEFAULT_FLUSH_ROWS,
     ) -> None:
         if not 1 <= len(channel) <= MAX_IFNAME_CHARS or " " in channel:
             raise ValueError(
@@ -184,18 +218,30 @@ class BusLog:
         self.channel = channel
         # the channel as CanutilsLogWriter writes it (a number n becomes "can<n>")
         self._line_channel = f"can{channel}" if channel.isdigit() else channel
-        self._writer = can.CanutilsLogWriter(str(path), channel=channel)
+        self._file = RecordFile(path, pad=True)
+        sink = _Lines()
+        self._lines = sink.lines
+        self._writer = can.CanutilsLogWriter(sink, channel=channel)  # type: ignore[arg-type]
         self._now = clock
         self._lock = threading.Lock()
-        self._flush_every = max(1, flush_every)
-        self._pending = 0
+        self._flush_syncs = max(1, flush_syncs)
         self.frames = 0
+        self.syncs = 0
+        #: why the log stopped (a block that could not be written), None while it runs
+        self.failed: OSError | None = None
 
     def log(self, msg: can.Message, received: bool) -> None:
         msg.is_rx = received
         msg.timestamp = timestamp = self._now()
         msg.channel = self.channel
         with self._lock:
+            if self.failed is not None:
+                return
+            lines = self._lines
+            if msg.arbitration_id == SYNC_COB_ID and not msg.is_extended_id:
+                if self.syncs % self._flush_syncs == 0:
+                    self._write_pending()
+                self.syncs += 1
             writer = self._writer
             if msg.is_remote_frame and not (msg.is_error_frame or msg.is_fd):
                 # candump writes a remote frame's DLC after the R ("602#R8", can-utils'
@@ -204,7 +250,7 @@ class BusLog:
                     writer.last_timestamp = timestamp
                 timestamp = max(timestamp, writer.last_timestamp)
                 width = 8 if msg.is_extended_id else 3
-                writer.file.write(
+                lines.append(
                     f"({timestamp:f}) {self._line_channel} {msg.arbitration_id:0{width}X}#R"
                     f"{f'{msg.dlc:X}' if msg.dlc else ''}{' R' if received else ' T'}\n"
                 )
@@ -221,24 +267,35 @@ class BusLog:
                 # checks the file byte for byte against python-can's writer)
                 if timestamp < writer.last_timestamp:
                     timestamp = writer.last_timestamp
-                writer.file.write(
+                lines.append(
                     f"({timestamp:f}) {self._line_channel} {msg.arbitration_id:03X}#"
                     f"{msg.data.hex().upper()}{' R' if received else ' T'}\n"
                 )
             self.frames += 1
-            self._pending += 1
-            if self._pending >= self._flush_every:
-                self._writer.file.flush()
-                self._pending = 0
+            if len(lines) >= MAX_PENDING_FRAMES:
+                self._write_pending()
+
+    def _write_pending(self) -> None:
+        if self._lines and self.failed is None:
+            try:
+                self._file.write_lines(self._lines)
+            except OSError as exc:  # the file ends at the block before (RecordFile)
+                self.failed = exc
+                log.error("bus log %s failed, logging stops: %s", self._file.path, exc)
+            self._lines.clear()
 
     def flush(self) -> None:
+        """Write the frames logged so far."""
         with self._lock:
-            self._writer.file.flush()
-            self._pending = 0
+            self._write_pending()
 
     def close(self) -> None:
         with self._lock:
-            self._writer.stop()
+            if not self._file.closed:
+                try:
+                    self._write_pending()
+                finally:
+                    self._file.close()
 
 
 def _frame_key(msg: can.Message) -> tuple[int, bool, bool, int, bytes]:

@@ -1,18 +1,28 @@
 """``python -m bridge run``: the bridge against a drive on a CAN interface (real time).
 
-Opens the bus, configures the drive over SDO and brings it to Operation Enabled
-(:mod:`bridge.master`), then produces SYNC from the wall clock and closes the loop every cycle
-until the moves are done (plus ``--hold`` seconds), ``--seconds`` have passed, the axis was
-stopped by a fault, or Ctrl-C. At the end the axis is disabled (controlword "switch on", set
-point 0, latched by one more SYNC). Exit status: 0 done, 1 the axis was stopped by a fault (the
-reason is printed), 2 bad arguments or files.
+Opens the bus, configures the drive over SDO -- its supervision of the bridge included
+(:mod:`bridge.supervision`: heartbeat consumer, 6007h, set-point watchdog) -- and brings it to
+Operation Enabled (:mod:`bridge.master`), then produces SYNC from the wall clock and closes the
+loop every cycle until the moves are done (plus ``--hold`` seconds), ``--seconds`` have passed,
+the axis was stopped by a fault, or SIGINT / SIGTERM (each ends the run at a cycle's end).
+
+At the end the stop reaches the drive (:mod:`bridge.halt`): the quick stop (or, at rest after
+the moves, switch on), by SYNC until the drive reports standstill out of Operation Enabled,
+else over SDO, else by NMT, and the result says which; then the drive's supervision objects
+get back the values they had before the start-up. Exit status: 0 done, 1 the axis was stopped
+by a fault or the drive was not confirmed at standstill (the reason is printed), 2 bad
+arguments or files.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
+import signal
+import threading
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,17 +32,20 @@ from regulator import RegulatorConfig
 from virtual_bus import BusConfig, Interface, bus_load, open_bus
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.frame_guard import FrameFault
+from virtual_bus.own_frames import EchoSortingBus
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
 from .busload import layout_load
 from .cycle import BridgeState, Command
 from .errors import BridgeConfigError
+from .halt import STANDSTILL_RAD_S, HaltResult, HaltWay, halt
 from .interpolator import Move
 from .layout import CycleLayout
+from .master import DriveMaster
 from .node import DEFAULT_OVERRUN_LIMIT, Bridge, BridgeConfig
 from .objects import params_with_store
 from .params import BridgeParams
-from .recorder import BusLog, TraceRecorder, WireOrderBus, log_channel
+from .recorder import BusLog, TraceRecorder, log_channel
 from .scaling import LOAD_INCREMENTS_PER_UNIT
 from .store import ParameterStore
 from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
@@ -69,6 +82,21 @@ class RunResult:
     skipped_syncs: int
     #: frames the frame guard refused, by kind (2110h; FrameFault order, sub-index 1 first)
     refused_frames: tuple[tuple[FrameFault, int], ...] = ()
+    #: how the stop reached the drive at the end (None: the start-up did not finish)
+    halt: HaltResult | None = None
+    #: the signal that ended the run (SIGINT, SIGTERM), if one did
+    interrupted: str | None = None
+    #: the drive's supervision objects: configured (lines), given back at the end (lines),
+    #: not given back (why), and what the drive lacks for it (notes)
+    supervision: tuple[str, ...] = ()
+    restored: tuple[str, ...] = ()
+    not_restored: tuple[str, ...] = ()
+    supervision_notes: tuple[str, ...] = ()
+
+    @property
+    def stopped_safely(self) -> bool:
+        """The drive was seen out of Operation Enabled at standstill at the end."""
+        return self.halt is not None and self.halt.confirmed
 
 
 def params_for(options: RunOptions) -> BridgeParams:
@@ -124,9 +152,28 @@ def run_bridge(options: RunOptions) -> RunResult:
         config = dataclasses.replace(config, receive_own_messages=True)
     bus = open_bus(config)  # first: a bus that cannot open is the one thing to say
     try:
-        return _run_on(bus, options, params)
+        with _sigterm_as_interrupt():
+            return _run_on(bus, options, params)
     finally:
         bus.shutdown()
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt like SIGINT (the blocking start-up ends the same way
+    for both; the loop handles both at a cycle's end, :func:`_signals_end_the_run`)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(_signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt("SIGTERM")
+
+    before = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
 
 
 def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunResult:
@@ -139,10 +186,19 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
     )
     recorder = TraceRecorder(options.trace_path, keep=False) if options.trace_path else None
     bus_log = None
+    sorting: tuple[EchoSortingBus, BusLog] | None = None
     if options.bus_log_path is not None:
         bus_log = BusLog(options.bus_log_path, channel=log_channel(options.bus))
         if options.bus.interface is Interface.SOCKETCAN:
-            bus = WireOrderBus(bus, bus_log)  # it logs; the bridge does not
+            # the kernel hands the bridge its own frames back in the wire's order; the log
+            # takes them there, the bridge never sees them (virtual_bus.own_frames)
+            writer = bus_log
+            bus = EchoSortingBus(
+                bus,
+                own=lambda m: writer.log(m, received=False),
+                other=lambda m: writer.log(m, received=True),
+            )
+            sorting = (bus, writer)
             bus_log = None
     bridge = Bridge(
         bus,
@@ -162,9 +218,9 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
         return _loop(bridge, options, bridge.controller.params)
     finally:
         bridge.close()
-        if isinstance(bus, WireOrderBus):  # it wrote the log: the bridge had none to close
-            bus.shutdown()
-            bus.log.close()
+        if sorting is not None:  # it wrote the log: the bridge had none to close
+            sorting[0].shutdown()
+            sorting[1].close()
 
 
 def _command_line_over_store(bridge: Bridge, options: RunOptions) -> None:
@@ -176,6 +232,29 @@ def _command_line_over_store(bridge: Bridge, options: RunOptions) -> None:
     if options.beta_t_rad_s is not None:
         p = p.with_value("beta_t_rad_s", options.beta_t_rad_s)
     c.set_params(p)
+
+
+@contextlib.contextmanager
+def _signals_end_the_run(ended: list[str]) -> Iterator[None]:
+    """While the loop runs, SIGINT and SIGTERM end it at the end of a cycle (their name goes
+    to ``ended``) instead of raising in the middle of one; elsewhere (the blocking start-up)
+    SIGTERM raises KeyboardInterrupt like SIGINT. Only in the main thread (signals go there)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    handled = (signal.SIGINT, signal.SIGTERM)
+    before = {sig: signal.getsignal(sig) for sig in handled}
+
+    def note(signum: int, _frame: object) -> None:
+        ended.append(signal.Signals(signum).name)
+
+    for sig in handled:
+        signal.signal(sig, note)
+    try:
+        yield
+    finally:
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
 
 
 def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResult:
@@ -194,27 +273,41 @@ def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResul
     limit = math.inf if options.seconds is None else options.seconds / params.cycle_s
     hold_cycles = round(options.hold_s / params.cycle_s)
     idle = [0]
+    ended: list[str] = []
 
     def done(b: Bridge) -> bool:
-        if b.controller.state is BridgeState.STOPPED or b.cycle_index >= limit:
+        if ended or b.controller.state is BridgeState.STOPPED or b.cycle_index >= limit:
             return True
         if options.moves and not b.controller.moving:
             idle[0] += 1
             return idle[0] > hold_cycles
         return False
 
-    try:
-        n = bridge.run(until=done)
-    except KeyboardInterrupt:
-        n = bridge.counters.cycles
-        log.warning("interrupted")
-    finally:
-        if c.state in (BridgeState.RUNNING, BridgeState.ENABLING):
-            c.command(Command.DISABLE)
-        # two more cycles: the RPDO "switch on, no motion" and the SYNC that latches it
-        bridge.run(cycles=2)
-        bridge.drain()  # what came meanwhile passes the frame guard too (counted, logged)
+    with _signals_end_the_run(ended):
+        try:
+            n = bridge.run(until=done)
+        except KeyboardInterrupt:  # not the main thread: Ctrl-C raises in the cycle
+            n = bridge.counters.cycles
+            ended.append("SIGINT")
+        finally:
+            if ended:
+                log.warning("%s: the run ends", ended[0])
+            if c.state in (BridgeState.RUNNING, BridgeState.ENABLING):
+                if ended or c.moving or abs(c.motor_speed_rad_s) > STANDSTILL_RAD_S:
+                    c.halt()  # the drive's quick stop ramp, not a coasting axis
+                else:
+                    c.command(Command.DISABLE)  # at rest after the moves: switch on
+            stopped = halt(bridge)  # the stop reaches the drive, confirmed (bridge.halt)
+            log.log(
+                logging.INFO if stopped.confirmed else logging.ERROR,
+                "%s",
+                stopped.describe(bridge.config.drive_id),
+            )
+            bridge.drain()  # what came meanwhile passes the frame guard too (counted, logged)
+    restored, not_restored = _give_back(bridge, stopped)
     timing = bridge.timing
+    info = bridge.drive_info
+    supervision = info.supervision if info is not None else None
     return RunResult(
         cycles=n,
         state=c.state,
@@ -223,4 +316,30 @@ def _loop(bridge: Bridge, options: RunOptions, params: BridgeParams) -> RunResul
         late_tpdos=bridge.counters.late,
         skipped_syncs=timing.skipped_syncs,
         refused_frames=tuple((fault, bridge.guard.count(fault)) for fault in FrameFault),
+        halt=stopped,
+        interrupted=ended[0] if ended else None,
+        supervision=tuple(supervision.describe()) if supervision is not None else (),
+        restored=restored,
+        not_restored=not_restored,
+        supervision_notes=supervision.notes if supervision is not None else (),
     )
+
+
+def _give_back(bridge: Bridge, stopped: HaltResult) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The drive's supervision objects back to their values before the start-up (the drive
+    is at rest and the bridge leaves in order: nothing is to watch it any more); not after
+    an NMT Stop (no SDO in Stopped): the drive then goes on watching, and stops again."""
+    info = bridge.drive_info
+    if info is None or not info.restore:
+        return (), ()
+    if stopped.way is HaltWay.NMT:
+        return (), ("the drive is NMT Stopped: its supervision objects stay as configured",)
+    with bridge.serving():
+        master = DriveMaster(bridge.drive, bridge.config.drive_setup)
+        failed = master.restore(info.restore)
+    done = tuple(
+        f"{key[0]:04X}h:{key[1]:02X} = 0x{data[::-1].hex().upper()}"
+        for key, data in info.restore
+        if not any(f"{key[0]:04X}h:{key[1]:02X}" in why for why in failed)
+    )
+    return done, tuple(failed)

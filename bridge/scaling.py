@@ -8,7 +8,7 @@
 
 Those are the contract's (the simulated drive's) defaults. A real drive's resolution and
 units come from its objects (608Fh, 6091h, 6092h, factor groups) or from its drive profile
-(:mod:`bridge.profile`); :class:`Scaling` carries whichever applies.
+(:mod:`virtual_bus.formats.drive_profile`); :class:`Scaling` carries whichever applies.
 
 The only difference between the bridge loop over the bus and the offline simulation is this
 quantisation (plus the one-cycle PDO delay both have).

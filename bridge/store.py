@@ -14,18 +14,20 @@ File format (JSON, UTF-8)::
     {"format": "backlash-bridge parameter store", "version": 1,
      "objects": {"2000h:00": "0000c841", ...}}   # raw SDO bytes, hex, little-endian
 
-Writes are atomic: a temporary file in the same directory, flushed and fsync'ed, then
-``os.replace`` -- a crash leaves the old file or the new one, never half of one.
+Writes are atomic (:func:`virtual_bus.atomic.write_atomic`, durable): a temporary file in the
+same directory (``.NAME.XXXXXXXX.tmp``), fsync'ed, renamed over the store, then the directory
+fsync'ed -- a kill or a power loss at any moment leaves the old store or the new one, never
+neither and never half of one (a kill before the rename also leaves the temporary file).
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
-import os
 import re
-import tempfile
 from pathlib import Path
+
+from virtual_bus.atomic import fsync_directory, write_atomic
 
 from .errors import StoreError
 
@@ -53,24 +55,13 @@ class ParameterStore:
             "version": VERSION,
             "objects": {_key(i, s): raw.hex() for (i, s), raw in sorted(values.items())},
         }
-        text = json.dumps(doc, indent=1) + "\n"
-        directory = self.path.parent
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=directory)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                f.write(text)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, self.path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            raise
+        write_atomic(self.path, json.dumps(doc, indent=1) + "\n", durable=True)
 
     def clear(self) -> None:
         """Remove the file (restore defaults at the next start); absent is fine."""
         with contextlib.suppress(FileNotFoundError):
             self.path.unlink()
+            fsync_directory(self.path.parent)  # the removal survives a power loss too
 
     def load(self) -> RawValues | None:
         """The stored raw values, None when there is no file; StoreError if malformed."""

@@ -36,6 +36,9 @@ class Effect(Enum):
     TORQUE_SATURATION = "torque_saturation"
     TIME_DELAY = "time_delay"
     SENSOR_TIME_OFFSET = "sensor_time_offset"
+    SETPOINT_DELAY = "setpoint_delay"
+    MEASUREMENT_DELAY = "measurement_delay"
+    SCALE_ERROR = "scale_error"
 
 
 class EffectModel:
@@ -182,6 +185,44 @@ class SensorTimeOffset(EffectModel):
         return abs(value) > 0.05 * scales.sample_time_s
 
 
+class SetpointDelay(EffectModel):
+    effect = Effect.SETPOINT_DELAY
+    keys = ("control.setpoint_delay", "control.setpoint_delay_rate")
+    description = (
+        "the drive applies the speed set point late (bus, the drive's input stage), by a "
+        "dead time that may grow slowly during the run"
+    )
+
+    def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
+        d0 = fitted.value("control.setpoint_delay") or 0.0
+        rate = fitted.value("control.setpoint_delay_rate") or 0.0
+        duration = len(scales.position) * scales.sample_time_s
+        return max(abs(d0), abs(d0 + rate * duration)) > 0.05 * scales.sample_time_s
+
+
+class MeasurementDelay(EffectModel):
+    effect = Effect.MEASUREMENT_DELAY
+    keys = ("control.measurement_delay",)
+    description = "every reading the position loop and the recording see is taken late"
+
+    def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
+        value = fitted.value("control.measurement_delay") or 0.0
+        return abs(value) > 0.05 * scales.sample_time_s
+
+
+class ScaleError(EffectModel):
+    effect = Effect.SCALE_ERROR
+    keys = (
+        "control.scale_error_amplitude",
+        "control.scale_error_period",
+        "control.scale_error_phase",
+    )
+    description = (
+        "a periodic error of the load measuring system (a reading error, not a force: it "
+        "shows in the deflection between the two measuring systems, not in the torque)"
+    )
+
+
 #: Every effect of the table, in the table's order.
 MODELS: dict[Effect, EffectModel] = {
     m.effect: m
@@ -197,6 +238,9 @@ MODELS: dict[Effect, EffectModel] = {
         TorqueSaturation(),
         TimeDelay(),
         SensorTimeOffset(),
+        SetpointDelay(),
+        MeasurementDelay(),
+        ScaleError(),
     )
 }
 
@@ -249,6 +293,21 @@ EXPERIMENTS: dict[frozenset[Effect], str] = {
     frozenset({Effect.SENSOR_TIME_OFFSET, Effect.COMPLIANCE}): (
         "moves at several constant speeds: a sensor time offset shifts the load position by "
         "speed x offset (no force needed), a compliance deflects with the force"
+    ),
+    frozenset({Effect.SETPOINT_DELAY, Effect.TIME_DELAY}): (
+        "a speed-loop step or frequency response driven from the drive's own signal "
+        "generator (not over the bus): a set point that arrives late shifts the whole "
+        "response, a dead time inside the speed loop changes its damping"
+    ),
+    frozenset({Effect.SETPOINT_DELAY, Effect.MEASUREMENT_DELAY}): (
+        "record the set point as the drive received it (its own trace): a late set point "
+        "shows between the bus and the drive, a late reading between the drive's actual "
+        "values and the recording"
+    ),
+    frozenset({Effect.SCALE_ERROR, Effect.PERIODIC_DISTURBANCE}): (
+        "a slow constant-speed pass over several periods with both measuring systems "
+        "recorded: a scale error moves the load reading against the motor's at no torque, "
+        "a periodic force moves the torque"
     ),
 }
 

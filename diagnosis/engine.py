@@ -85,6 +85,9 @@ __all__ = [
 DEFAULT_OPTIONS = DiagnosisOptions()
 #: Fewest held-out-block pairs a recording needs (a shorter one is refused).
 MIN_BLOCKS = 2
+#: Shortest fit / held-out block a short recording's blocks are cut to (s): a 2 s recording
+#: is diagnosed on blocks of 0.5 s; below this the held-out check has too little to judge.
+MIN_BLOCK_S = 0.25
 
 
 def diagnose(
@@ -162,12 +165,21 @@ def prepare(
         )
         for i, v in enumerate(vals)
     ]
+    notes: list[str] = []
     if not val_inps and inp.duration_s < 2 * MIN_BLOCKS * options.block_s:
-        raise DiagnosisInputError(
-            f"the recording lasts {inp.duration_s:.3g} s; the diagnosis needs at least "
-            f"{2 * MIN_BLOCKS * options.block_s:g} s (fitted and held-out blocks of "
-            f"{options.block_s:g} s), or a second recording to hold out (--validate)"
+        # a short recording: shorter blocks, as long as each still holds MIN_BLOCK_S
+        block = inp.duration_s / (2 * MIN_BLOCKS)
+        if block < MIN_BLOCK_S:
+            raise DiagnosisInputError(
+                f"the recording lasts {inp.duration_s:.3g} s; the diagnosis needs at least "
+                f"{2 * MIN_BLOCKS * MIN_BLOCK_S:g} s (fitted and held-out blocks of at least "
+                f"{MIN_BLOCK_S:g} s), or a second recording to hold out (--validate)"
+            )
+        notes.append(
+            f"a short recording ({inp.duration_s:.3g} s): fitted and held-out blocks of "
+            f"{block:.3g} s instead of {options.block_s:g} s"
         )
+        options = replace(options, block_s=block)
     ref = inp.recorded["position_reference"]
     if not np.ptp(ref) > 0.0:
         raise DiagnosisInputError(
@@ -180,9 +192,11 @@ def prepare(
         if not val_inps
         else np.ones(inp.n_samples, dtype=bool)
     )
-    return Context(
+    ctx = Context(
         recording, nominal, inp, val_inps, data_scales(inp), train, options, None, t_start
     )
+    ctx.notes.extend(notes)
+    return ctx
 
 
 # ----------------------------------------------------------------------------------------

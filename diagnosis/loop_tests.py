@@ -1,5 +1,6 @@
 """Effects of the control path, tested through the loop: a dead time between the speed
-controller and the torque, a torque limit, and (with one measuring system, where no
+controller and the torque, a set point applied late (bus, drive input stage), readings taken
+late, a torque limit, and (with one measuring system, where no
 deflection is measured) free play.
 
 These act on the relation between the commanded and the measured signals, not on the torque
@@ -40,6 +41,9 @@ from .replay import ReplayInput, compared_quantity, replay
 NAME = "closed loop"
 #: Dead times tried, in speed cycles.
 DELAY_CYCLES = (1, 2, 3, 4, 6, 8, 12, 16)
+#: Set-point and reading dead times tried, in speed cycles (continuous in the kernel: linear
+#: interpolation between the speed cycles' history; 0.25-4 ms at 125 µs).
+LATE_CYCLES = (2, 4, 8, 16, 32)
 #: Torque limits tried, as percentiles of the recorded |torque|.
 LIMIT_PERCENTILES = (99.0, 99.8, 100.0)
 #: Free play tried (one measuring system), as multiples of the following error's spread.
@@ -94,6 +98,18 @@ def loop_candidates(
                     vals,
                     tuple(model.with_values({"control.delay": v}) for v in vals),
                 )
+            )
+    for effect, key in (
+        (Effect.SETPOINT_DELAY, "control.setpoint_delay"),
+        (Effect.MEASUREMENT_DELAY, "control.measurement_delay"),
+    ):
+        if effect not in effects:
+            continue
+        top = 0.1 if effect is Effect.SETPOINT_DELAY else 0.05
+        vals = tuple(n * c.speed_cycle for n in LATE_CYCLES if n * c.speed_cycle <= top)
+        if vals:
+            out.append(
+                LoopCandidate(effect, key, vals, tuple(model.with_values({key: v}) for v in vals))
             )
     if Effect.TORQUE_SATURATION in effects:
         tau = np.abs(inp.recorded["motor_torque"])

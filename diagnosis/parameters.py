@@ -46,6 +46,9 @@ UNCERTAINTY: dict[str, float] = {
     "control.torque_limit": 0.2,
     "control.delay": 1.0,
     "control.sensor_time_offset": 1.0,
+    "control.setpoint_delay": 1.0,
+    "control.setpoint_delay_rate": 1.0,
+    "control.measurement_delay": 1.0,
 }
 
 
@@ -73,6 +76,9 @@ def key_unit(key: str, axis: AxisConfig) -> str:
         "disturbance.periodic_phase": "rad",
         "control.delay": "s",
         "control.sensor_time_offset": "s",
+        "control.setpoint_delay": "s",
+        "control.setpoint_delay_rate": "s/s",
+        "control.measurement_delay": "s",
     }
     if key in table:
         return table[key]
@@ -155,6 +161,8 @@ def physical(key: str, value: float) -> bool:
     if key.startswith(("mechanics.", "friction.")) or key in (
         "disturbance.periodic_amplitude",
         "control.delay",
+        "control.setpoint_delay",
+        "control.measurement_delay",
     ):
         return value >= 0.0
     return True
@@ -247,6 +255,16 @@ def parameter_for(
         cyc = axis.control.position_cycle
         lim = max(min(0.05, 20.0 * cyc), 1.01 * abs(value))
         return Parameter(key, -lim, lim, value, cyc)
+    if key in ("control.setpoint_delay", "control.measurement_delay"):
+        # from none to twice the loop scan's estimate, at least 8 speed cycles
+        cyc = axis.control.speed_cycle
+        hi = max(2.0 * value, 8.0 * cyc)
+        return Parameter(key, 0.0, hi, value, max(cyc, 0.25 * value))
+    if key == "control.setpoint_delay_rate":
+        # a growth over the recording of at most 5 ms (scale: a position cycle over it)
+        duration = max(len(scales.position) * scales.sample_time_s, scales.sample_time_s)
+        lim = max(min(0.005 / duration, 0.01), 1.01 * abs(value))
+        return Parameter(key, -lim, lim, value, axis.control.position_cycle / duration)
     raise KeyError(f"no fitting rule for {key!r}")
 
 

@@ -314,7 +314,9 @@ def scan_test(
         q = _orth(zt)
         qs.append(q)
         stats_.append(float(np.sum((q.T @ (r0 - off)) ** 2)) if q.shape[1] else 0.0)
-    if not qs or nb < 2:
+    if not qs or nb < 2 or not any(q.shape[1] for q in qs):
+        # nothing to test: no blocks, or every candidate lies within the base regressors
+        # (a short or motionless recording: the demo's 7 s at standstill between moves)
         width = candidates[0].shape[1] if candidates and candidates[0].ndim == 2 else 1
         return ScanResult(0.0, 0, 1.0, 1.0, 1.0, -math.inf, nb, 0, np.zeros(width), r0)
     best = int(np.argmax(stats_))

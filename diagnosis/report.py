@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from virtual_bus.atomic import write_atomic
 from virtual_bus.formats.axis import dump_axis
 from virtual_bus.formats.trace import Trace
 
@@ -210,8 +211,8 @@ def write_report(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = dict(zip(REPORT_FILES, (out / name for name in REPORT_FILES), strict=True))
-    paths["report.json"].write_text(json.dumps(report_dict(d), indent=2) + "\n", encoding="utf-8")
-    paths["axis_fitted.toml"].write_text(axis_text(d, source), encoding="utf-8")
+    write_atomic(paths["report.json"], json.dumps(report_dict(d), indent=2) + "\n")
+    write_atomic(paths["axis_fitted.toml"], axis_text(d, source))
     simulated_like(d.recording, d.simulated_before).to_csv(paths["fit_before.csv"])
     simulated_like(d.recording, d.simulated_after).to_csv(paths["fit_after.csv"])
     plot_report(d, paths["report.png"])

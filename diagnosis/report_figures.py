@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from virtual_bus.atomic import replacing
+
 from .outcome import Diagnosis
 from .quantity import prefix_for
 from .summary import compared, effect_name, signal_label
@@ -296,4 +298,5 @@ def plot_report(d: Diagnosis, path: str | Path) -> None:
     named = ", ".join(effect_name(e) for e in d.left_out) or "nothing"
     verdict = "" if d.adequacy.adequate else " — the model class does not explain the recording"
     fig.suptitle(f"Diagnosis: left out {named}{verdict}", fontsize=11)
-    fig.savefig(path, dpi=90)
+    with replacing(Path(path)) as tmp:  # a kill leaves the old figure or the new one
+        fig.savefig(tmp, dpi=90, format=Path(path).suffix[1:])

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from virtual_bus.atomic import write_atomic
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.trace import Trace
 
@@ -667,5 +668,5 @@ def page(d: Diagnosis, source: str = "", axis_source: str = "") -> str:
 
 def write_html(d: Diagnosis, path: str | Path, source: str = "", axis_source: str = "") -> Path:
     out = Path(path)
-    out.write_text(page(d, source, axis_source), encoding="utf-8")
+    write_atomic(out, page(d, source, axis_source))
     return out

@@ -35,6 +35,7 @@ from scipy import signal as sps
 
 from plant_sim.physics.model import KernelOptions, default_substeps
 from plant_sim.physics.simulate import References, simulate
+from virtual_bus.atomic import write_atomic
 from virtual_bus.formats.axis import (
     AxisConfig,
     AxisKind,
@@ -364,6 +365,11 @@ class GeneratedCase:
     truth_without: AxisConfig
     references: References
     process_nm: np.ndarray
+    #: what the diagnosis should name, when the truth is no axis file (an FMU's inside):
+    #: the effects left out (None: those of ``truth`` the nominal lacks) and the names that
+    #: count as a correct first naming (empty: ``case.effect`` alone)
+    expected: list[str] | None = None
+    accepted: tuple[str, ...] = ()
 
 
 def _peak_demand(axis: AxisConfig, refs: References, plant: Simulator) -> float:
@@ -557,8 +563,8 @@ def write_case(gen: GeneratedCase, directory: str | Path) -> tuple[Path, Path]:
     csv_path = directory / f"{gen.case.name}.csv"
     toml_path = directory / f"{gen.case.name}_nominal.toml"
     gen.recording.to_csv(csv_path)
-    toml_path.write_text(
+    write_atomic(
+        toml_path,
         dump_axis(plain_floats(gen.nominal), header=f"nominal axis of test case {gen.case.name}"),
-        encoding="utf-8",
     )
     return csv_path, toml_path

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import math
+import warnings
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -21,6 +22,7 @@ from plant_sim.errors import PlantSimError
 from regulator.errors import RegulatorError
 from virtual_bus.formats import FormatError
 from virtual_bus.formats.axis import AxisConfig, PositionFeedback, load_axis
+from virtual_bus.formats.errors import TornTailWarning
 
 from .candump import layout_for
 from .chunks import Chunk
@@ -46,7 +48,8 @@ class RecordingResult:
     vibrates, else none. lost_motion/_uncertainty: load units (nan where not measurable),
     reversals: how many reversals it rests on; backlash: the lost motion less the elastic
     wind-up (:class:`~.lost_motion.LostMotion`), nan for a rigid axis file or torque in ‰.
-    error: one line when the file was unusable.
+    error: one line when the file was unusable. warning: one line when the reader dropped a
+    torn tail (a recorder killed mid-write; the whole records before it were analysed).
     """
 
     path: str
@@ -69,6 +72,7 @@ class RecordingResult:
     reversals: int = 0
     torque_unit: str = ""
     error: str = ""
+    warning: str = ""
     episodes: tuple[Episode, ...] = field(default_factory=tuple)
 
     @property
@@ -111,6 +115,17 @@ def analyse(source: Source) -> RecordingResult:
     except (FormatError, PlantSimError, OSError) as exc:
         return dataclasses.replace(base, error=f"{source.path}: axis file: {exc}")
     base = dataclasses.replace(base, kv_per_s=axis.control.kv, load_unit=axis.load_unit)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", TornTailWarning)
+        result = _analyse_or_error(source, axis, base)
+    torn = [str(w.message) for w in caught if issubclass(w.category, TornTailWarning)]
+    for w in caught:  # any other warning goes on as it came
+        if not issubclass(w.category, TornTailWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return dataclasses.replace(result, warning="; ".join(torn)) if torn else result
+
+
+def _analyse_or_error(source: Source, axis: AxisConfig, base: RecordingResult) -> RecordingResult:
     try:
         return _analyse(source, axis, base)
     except RecordingError as exc:

@@ -10,21 +10,30 @@ start-up falls back to the contract's layout (docs/canopen_layout.md: TPDO1 6064
 TPDO2 6041h + 6077h + 606Ch, RPDO1 6040h + 60FFh).
 
 Scaling (:class:`CandumpLayout`): the contract's by default, or a drive profile's
-(``--drive-profile``, ``bridge/profile.py``): 6064h increments per motor revolution, 606Ch /
+(``--drive-profile``, ``virtual_bus/formats/drive_profile.py``): 6064h increments per motor
+revolution, 606Ch /
 60FFh units per revolution per second, load increments per load unit, the rated torque
 (6076h, else the start-up's SDO answer for 6076h in the log, else torque in ‰).
 
 Signals per SYNC: motor position (6064h), load position (60E4h:01 / 60E4h:00, 6004h of a
 CiA 406 encoder, or the profile's vendor object), torque (6077h), motor speed (606Ch) and
 the speed set point the bridge sent (60FFh of the drive's RPDO).
+
+A log a kill or a power loss cut short: a last line without its line end is not a frame,
+and a last SYNC cycle with fewer of the layout's PDOs than the cycle before it (the first:
+than the layout has) is where the log was cut, not a sample; both are dropped with one
+:class:`~virtual_bus.formats.errors.TornTailWarning` naming the byte they start at and their
+length. Every whole cycle before them is read.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -35,6 +44,8 @@ from virtual_bus.contract import (
     RPDO_COMM_BASE,
     SDO_RX_BASE,
     SYNC_COB_ID,
+    Cia402,
+    Cia406,
     pdo_comm_index,
     pdo_mapping_index,
     pdo_of_cob_id,
@@ -44,17 +55,23 @@ from virtual_bus.contract import (
     tpdo_cob_id,
 )
 from virtual_bus.formats.axis import AxisKind
+from virtual_bus.formats.drive_profile import load_profile
+from virtual_bus.formats.errors import TornTailWarning
 
 from .chunks import CHUNK_ROWS, Chunk, checked, first_line
 from .errors import RecordingError
 
-MOTOR_POSITION = (0x6064, 0)
-TORQUE = (0x6077, 0)
-MOTOR_VELOCITY = (0x606C, 0)
-TARGET_VELOCITY = (0x60FF, 0)
-STATUSWORD = (0x6041, 0)
+MOTOR_POSITION = (Cia402.POSITION_ACTUAL_VALUE, 0)
+TORQUE = (Cia402.TORQUE_ACTUAL_VALUE, 0)
+MOTOR_VELOCITY = (Cia402.VELOCITY_ACTUAL_VALUE, 0)
+TARGET_VELOCITY = (Cia402.TARGET_VELOCITY, 0)
+STATUSWORD = (Cia402.STATUSWORD, 0)
 #: Load measuring systems in the order the bridge prefers them (bridge/adapt.py).
-LOAD_OBJECTS = ((0x60E4, 1), (0x60E4, 0), (0x6004, 0))
+LOAD_OBJECTS = (
+    (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 1),
+    (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 0),
+    (Cia406.POSITION_VALUE, 0),
+)
 ObjectKey = tuple[int, int]
 
 
@@ -92,8 +109,6 @@ def layout_for(kind: AxisKind, profile_path: Path | None = None) -> CandumpLayou
     load = 1e9 if kind is AxisKind.LINEAR else 1e6  # nm per m, µrad per rad (60E4h:01)
     if profile_path is None:
         return CandumpLayout(load_increments_per_unit=load)
-    from bridge.profile import load_profile  # the bridge owns the profile format
-
     p = load_profile(profile_path)
     rated = None if p.rated_torque_mnm is None else p.rated_torque_mnm / 1000.0
     return CandumpLayout(
@@ -200,10 +215,15 @@ def _contract(drive: int) -> tuple[dict[int, tuple[_Field, ...]], dict[int, tupl
         return _Field(key, offset, size, key != STATUSWORD)
 
     tpdos = {
-        tpdo_cob_id(1, drive): (f(MOTOR_POSITION, 0, 4), f((0x60E4, 1), 4, 4)),
+        tpdo_cob_id(1, drive): (
+            f(MOTOR_POSITION, 0, 4),
+            f((Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 1), 4, 4),
+        ),
         tpdo_cob_id(2, drive): (f(STATUSWORD, 0, 2), f(TORQUE, 2, 2), f(MOTOR_VELOCITY, 4, 4)),
     }
-    return tpdos, {rpdo_cob_id(1, drive): (f((0x6040, 0), 0, 2), f(TARGET_VELOCITY, 2, 4))}
+    return tpdos, {
+        rpdo_cob_id(1, drive): (f((Cia402.CONTROLWORD, 0), 0, 2), f(TARGET_VELOCITY, 2, 4))
+    }
 
 
 class Decoder:
@@ -220,9 +240,13 @@ class Decoder:
         self.rows: list[tuple[float, float, float, float, float, float]] = []
         self.load_seen = False
         self.syncs = 0
+        #: the last cycle was cut short (see the module docstring) and left out
+        self.dropped_last = False
         self._sync_t = math.nan
         self._values: dict[ObjectKey, int] = {}
         self._setpoint = math.nan
+        self._pdos: set[int] = set()  # COB-IDs of the layout's PDOs seen since the SYNC
+        self._pdos_before: set[int] | None = None  # those of the cycle before
         self._load_keys = (
             (layout.load_object, *LOAD_OBJECTS) if layout.load_object else LOAD_OBJECTS
         )
@@ -248,6 +272,7 @@ class Decoder:
             return
         fields = self.tpdos.get(cid)
         if fields is not None:
+            self._pdos.add(cid)
             for fd in fields:
                 if fd.offset + fd.size <= len(data):
                     raw = data[fd.offset : fd.offset + fd.size]
@@ -255,6 +280,7 @@ class Decoder:
             return
         fields = self.rpdos.get(cid)
         if fields is not None:
+            self._pdos.add(cid)
             for fd in fields:
                 if fd.key == TARGET_VELOCITY and fd.offset + fd.size <= len(data):
                     raw = data[fd.offset : fd.offset + fd.size]
@@ -271,8 +297,18 @@ class Decoder:
         ):
             self.rated_torque_nm = int.from_bytes(data[4:8], "little") / 1000.0
 
-    def _close_cycle(self) -> None:
+    def _close_cycle(self, last: bool = False) -> None:
         v = self._values
+        if last and math.isfinite(self._sync_t):
+            expected = self._pdos_before
+            if expected is None:
+                expected = set(self.tpdos) | set(self.rpdos)
+            if not expected <= self._pdos:  # the log ends inside this cycle
+                self.dropped_last = True
+                self._values = {}
+                return
+        if self._pdos:
+            self._pdos_before, self._pdos = self._pdos, set()
         if MOTOR_POSITION in v and math.isfinite(self._sync_t):
             load = next((v[k] for k in self._load_keys if k in v), None)
             self.load_seen |= load is not None
@@ -291,7 +327,7 @@ class Decoder:
 
     def take(self, final: bool = False) -> Chunk | None:
         if final:
-            self._close_cycle()
+            self._close_cycle(last=True)
         if not self.rows:
             return None
         a = np.asarray(self.rows, dtype=np.float64)
@@ -311,28 +347,30 @@ class Decoder:
 def read_candump_chunks(path: Path, layout: CandumpLayout = CandumpLayout()) -> Iterator[Chunk]:
     """Chunks of a candump log of the bridge's bus (see the module docstring)."""
     try:
-        handle = path.open("r", encoding="ascii", errors="strict")
+        handle = path.open("rb")
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read it ({exc.strerror})", path=str(path)) from None
     with handle:
+        lines = _WholeLines(handle)
         head: list[tuple[float, int, bytes]] = []
-        lineno = 0
+        sync_at = 0  # where the line of the last SYNC starts
         try:
-            for line in handle:
-                lineno += 1
-                parsed = parse_line(line)
+            for at, line in lines:
+                parsed = parse_line(line.decode("ascii"))
                 if parsed is not None:
+                    sync_at = at if parsed[1] == SYNC_COB_ID else sync_at
                     head.append(parsed)
                 if len(head) >= 4000:
                     break
             decoder = Decoder(path, layout, layout.drive_id or find_drive(path, head))
             for frame in head:
                 decoder.feed(*frame)
-            for line in handle:
-                lineno += 1
-                parsed = parse_line(line)
+            for at, line in lines:
+                parsed = parse_line(line.decode("ascii"))
                 if parsed is None:
                     continue
+                if parsed[1] == SYNC_COB_ID:
+                    sync_at = at
                 decoder.feed(*parsed)
                 if len(decoder.rows) >= CHUNK_ROWS:
                     chunk = decoder.take()
@@ -341,14 +379,54 @@ def read_candump_chunks(path: Path, layout: CandumpLayout = CandumpLayout()) -> 
         except RecordingError:
             raise
         except (ValueError, UnicodeDecodeError) as exc:
-            # a decode error happens while the line is read, before it is counted
-            lineno += isinstance(exc, UnicodeDecodeError)
             raise RecordingError(
-                f"{path}: line {lineno}: not a candump -l log line ({first_line(exc)})",
+                f"{path}: line {lines.lineno}: not a candump -l log line ({first_line(exc)})",
                 path=str(path),
             ) from None
         chunk = decoder.take(final=True)
         if decoder.syncs == 0:
             raise RecordingError(f"{path}: candump log without SYNC frames (0x080)", path=str(path))
+        size = lines.size
+        _warn_cut(path, sync_at if decoder.dropped_last else lines.torn, size)
         if chunk is not None:
             yield checked(chunk, path)
+
+
+class _WholeLines:
+    """(byte offset, line) of each whole line of a binary file; ``lineno``: the number of the
+    line handed out last. A last line without its line end is not handed out: ``torn`` is
+    where it starts, ``size`` the file's length once the lines are through."""
+
+    def __init__(self, handle: BinaryIO) -> None:
+        self._handle = handle
+        self.torn: int | None = None
+        self.size = 0
+        self.lineno = 0
+
+    def __iter__(self) -> Iterator[tuple[int, bytes]]:
+        return self
+
+    def __next__(self) -> tuple[int, bytes]:
+        line = self._handle.readline()
+        at = self.size
+        self.size += len(line)
+        if not line:
+            raise StopIteration
+        if not line.endswith(b"\n"):
+            self.torn = at
+            raise StopIteration
+        self.lineno += 1
+        return at, line
+
+
+def _warn_cut(path: Path, start: int | None, size: int) -> None:
+    """The one warning about the tail a cut left (nothing when ``start`` is None)."""
+    if start is None or start >= size:
+        return
+    warnings.warn(
+        f"{path}: the last {size - start} bytes (from byte {start}) are a SYNC cycle or a line "
+        "the log was cut inside (a writer stopped mid-write): dropped, every whole cycle "
+        "before it is read",
+        TornTailWarning,
+        stacklevel=3,
+    )

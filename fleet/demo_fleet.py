@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from plant_sim.physics.simulate import References, simulate
+from virtual_bus.atomic import write_atomic
 from virtual_bus.contract import (
     SYNC_COB_ID,
     rpdo_cob_id,
@@ -150,7 +151,7 @@ def write_candump(
             f"{le(0x1237, 2)}{le(torque[k], 2)}{le(mspd[k], 4)}"
         )
         lines.append(f"({ts + 0.0002:.6f}) can0 {rpdo1:03X}#{le(0x000F, 2)}{le(setp[k], 4)}")
-    path.write_text("\n".join(lines) + "\n", encoding="ascii")
+    write_atomic(path, "\n".join(lines) + "\n")
 
 
 def _corrupt(kind: int, path: Path, trace: Trace) -> Path:
@@ -224,9 +225,9 @@ def generate(
                     progress(done, total)
             truth[f"{machine}/{axis_name}"] = entry
             axis_file = folder / "axis.toml"
-            axis_file.write_text(_axis_toml(base, kv))
-    (out / "truth.json").write_text(json.dumps(truth, indent=1))
-    (out / "axes.toml").write_text(_axis_map(truth))
+            write_atomic(axis_file, _axis_toml(base, kv))
+    write_atomic(out / "truth.json", json.dumps(truth, indent=1))
+    write_atomic(out / "axes.toml", _axis_map(truth))
     return truth
 
 

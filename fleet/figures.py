@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from virtual_bus.atomic import replacing, write_atomic
+
 from .analyse import RecordingResult
 from .episodes import Verdict
 from .ranking import DAYS_PER_MONTH, AxisTrend
@@ -58,7 +60,8 @@ def fig4_fleet(results: Sequence[RecordingResult], path: Path) -> Path:
     ax.set_ylim(0.0, max([k_hi * 1.1, *(f * 1.05 for f in f_all)]))
     ax.set_title("Fleet vibration frequency against k_v (the paper's Fig. 4)")
     ax.legend(loc="upper left", fontsize=9, framealpha=0.9)
-    fig.savefig(path, dpi=110)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix[1:])
     plt.close(fig)
     return path
 
@@ -117,7 +120,8 @@ def trends_figure(ranked: Sequence[AxisTrend], path: Path) -> Path:
         for label in ax.get_xticklabels():
             label.set_rotation(30)
     fig.suptitle(f"Backlash trend of the {len(shown)} most urgent axes (ranked)", fontsize=11)
-    fig.savefig(path, dpi=100)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, dpi=100, format=path.suffix[1:])
     plt.close(fig)
     return path
 
@@ -180,5 +184,5 @@ eq. 13 (k_v/4 ≤ f ≤ k_v); backlash: lost motion at reversals less the elasti
 <h2>Recordings that could not be read</h2><ul>{bad_rows or "<li>none</li>"}</ul>
 </body></html>
 """
-    path.write_text(page, encoding="utf-8")
+    write_atomic(path, page)
     return path

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from virtual_bus.atomic import replacing
+
 from .analyse import RecordingResult
 from .episodes import Verdict
 
@@ -48,6 +50,7 @@ RECORDING_COLUMNS = (
     "reversals",
     "torque_unit",
     "error",
+    "warning",
 )
 EPISODE_COLUMNS = (
     "path",
@@ -254,7 +257,7 @@ def write_table(
     import pyarrow.parquet as pq
 
     csv_path = stem.with_suffix(".csv")
-    with csv_path.open("w", newline="", encoding="utf-8") as f:
+    with replacing(csv_path) as tmp, tmp.open("w", newline="", encoding="utf-8") as f:
         writer = csv.DictWriter(f, fieldnames=list(columns))
         writer.writeheader()
         for row in rows:
@@ -265,7 +268,8 @@ def write_table(
         else (pa.table({c: pa.array([], pa.string()) for c in columns}))
     )
     parquet_path = stem.with_suffix(".parquet")
-    pq.write_table(table, parquet_path)
+    with replacing(parquet_path) as tmp:
+        pq.write_table(table, tmp)
     return [csv_path, parquet_path]
 
 

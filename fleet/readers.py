@@ -8,7 +8,8 @@ Two formats:
   finite values, strictly increasing time, >= 100 rows, a time step that can be seconds);
   an empty, NaN or infinite cell of an optional column is a sample without that measurement
   (a finite value beyond the format's magnitude limit is refused), a blank line is a row
-  without values (refused in the required columns, as by ``read_trace``);
+  without values (refused in the required columns, as by ``read_trace``); a last row without
+  its line end (a recorder killed mid-write) is dropped with one warning, as by ``read_trace``;
 * **candump logs** (``candump -l`` format, ``(EPOCH) IFACE ID#DATA``) of a bus with the PDO
   layout of ``docs/canopen_layout.md``: one sample per SYNC, from the drive's TPDO1 (6064h
   motor position, 60E4h:01 load position) and TPDO2 (6077h torque, 606Ch speed) and the
@@ -30,6 +31,7 @@ import numpy as np
 
 from virtual_bus.formats import trace as trace_format
 from virtual_bus.formats.errors import TraceFileError
+from virtual_bus.formats.records import file_whole_lines_end, torn_tail
 
 from .candump import CandumpLayout, read_candump_chunks
 from .chunks import CHUNK_ROWS, Chunk, first_line
@@ -51,8 +53,11 @@ def read_trace_chunks(path: Path) -> Iterator[Chunk]:
     import pyarrow.csv as pacsv
 
     try:
+        end, size = file_whole_lines_end(path)
+        torn_tail(str(path), end, size, "row")
+        whole = path if end == size else pa.BufferReader(_head(path, end))
         reader = pacsv.open_csv(
-            path,
+            whole,
             read_options=pacsv.ReadOptions(block_size=CSV_BLOCK_BYTES),
             # a blank line is a row without values, refused in a required column as by
             # read_trace (Arrow would skip it and shift every line number after it)
@@ -109,6 +114,13 @@ def read_trace_chunks(path: Path) -> Iterator[Chunk]:
         ) from None
     except TraceFileError as exc:
         raise RecordingError(str(exc), path=source) from None
+
+
+def _head(path: Path, nbytes: int) -> object:
+    """The first ``nbytes`` of the file, mapped (not read into memory)."""
+    import pyarrow as pa
+
+    return pa.memory_map(str(path)).read_buffer(nbytes) if nbytes else pa.py_buffer(b"")
 
 
 def _opt(cols: dict[str, np.ndarray], name: str, sl: slice) -> np.ndarray | None:

@@ -27,6 +27,7 @@ from bridge.params import BridgeParams
 from plant_sim.fmu.arguments import AxisSource
 from plant_sim.paper.scenarios import SectionX
 from regulator import RegulatorConfig
+from virtual_bus.atomic import write_atomic
 from virtual_bus.errors import RealTimeRefused
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.realtime import RealTimeOptions
@@ -250,5 +251,5 @@ def run_bench(
             )
         print(f"CPU time the hypervisor stole during the run (ms): {r['host_steal_ms']}")
     if json_path is not None:
-        json_path.write_text(json.dumps(results, indent=2) + "\n")
+        write_atomic(json_path, json.dumps(results, indent=2) + "\n")
     return results

@@ -133,6 +133,8 @@ def simulated_axis(
             recorder=recorder,
             bus_log=bus_log,
             keep_timing=keep_timing,
+            # the drive here is in process and watches on the same (simulated) clock
+            wall_heartbeat=time_mode is not TimeMode.LOCKSTEP,
         )
         stack.callback(bridge.close)
         drive.start()

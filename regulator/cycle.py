@@ -120,6 +120,72 @@ def position_cycle(
     return OK
 
 
+def measure(
+    c: Any,
+    det: Any,
+    x_ref: float,
+    speed: float,
+    x_fb: float,
+    difference: float,
+    check_limits: bool,
+) -> int:
+    """The first half of :func:`position_cycle` for axes whose eq. 15 shares one lambda (the
+    contour axes of section II.A, which must keep identical dynamics, eq. 1): steps 1-3 up to
+    this axis's own ``lambda = exp(-beta / beta_T)`` (1 with the regulator off), stored in
+    ``c[Y_LAMBDA]`` with beta; the set point is left to :func:`apply`. The same operations in
+    the same order as :func:`position_cycle`: ``measure`` then ``apply(c, c[Y_LAMBDA])`` is
+    :func:`position_cycle` bit for bit (tests/regulator/test_cycle.py)."""
+    if not (math.isfinite(x_ref) and math.isfinite(x_fb)):
+        return NOT_FINITE
+    kr = c[C_KR]
+    omega_s = kr * speed
+    omega_c = core.position_command(x_ref, x_fb, c[C_KV], kr) + c[C_VFF] * omega_s
+    error = x_ref - x_fb
+    c[Y_OMEGA_S] = omega_s
+    c[Y_OMEGA_C] = omega_c
+    c[Y_ERROR] = error
+    if check_limits:
+        if abs(error) > c[C_FE_LIMIT]:
+            return FOLLOWING_ERROR
+        if abs(difference) > c[C_DISC_LIMIT]:
+            return DISCREPANCY
+        if (x_fb < c[C_POS_MIN] and speed <= 0.0) or (x_fb > c[C_POS_MAX] and speed >= 0.0):
+            return POSITION_LIMIT
+    u = omega_s - omega_c
+    if not (math.isfinite(omega_s) and math.isfinite(omega_c) and math.isfinite(u)):
+        return NOT_FINITE
+    beta = core.detector_step(det, int(c[C_REG_N]), c[C_CYCLE], c[C_REG_TV], c[C_REG_TF], u)
+    lam = core.switching_factor(beta, c[C_REG_BT]) if c[C_REG_ON] != 0.0 else 1.0
+    c[Y_BETA] = beta
+    c[Y_LAMBDA] = lam
+    return OK
+
+
+def apply(c: Any, lam: float) -> None:
+    """The second half of :func:`position_cycle` after :func:`measure`: eq. 15 with ``lam``
+    (this axis's own, or the one the contour axes share, :func:`shared_lambda`) and the speed
+    clamp (2007h); ``c[Y_LAMBDA]`` becomes ``lam``."""
+    omega_r = core.regulated_speed(c[Y_OMEGA_S], c[Y_OMEGA_C], lam)
+    limit = c[C_SPEED_LIMIT]
+    if omega_r > limit:
+        omega_r = limit
+    elif omega_r < -limit:
+        omega_r = -limit
+    c[Y_LAMBDA] = lam
+    c[Y_OMEGA_R] = omega_r
+
+
+def shared_lambda(blocks: Any) -> float:
+    """The lambda interpolating axes share: the smallest of their own (after
+    :func:`measure`), so that the axis that shakes most fades the load scale out of every
+    contour axis's loop alike and their following errors stay equal (eq. 1)."""
+    lam = 1.0
+    for c in blocks:
+        if c[Y_LAMBDA] < lam:
+            lam = c[Y_LAMBDA]
+    return lam
+
+
 def block(
     kr: float,
     kv: float,

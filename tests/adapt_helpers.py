@@ -21,8 +21,8 @@ import canopen
 import pytest
 
 from bridge.master import DriveMaster, DriveSetup
-from bridge.profile import DriveProfile
 from tests.paths import DATA
+from virtual_bus.formats.drive_profile import DriveProfile
 from virtual_bus.shipped import SHARED_DIR
 
 #: The vendors' EDS files are third-party data: they are not part of this repository but of

@@ -13,6 +13,7 @@ abort codes, 7.1.4 data types), CiA 402 (6040h/6041h bits), docs/canopen_layout.
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Sequence
 from enum import Enum, IntEnum
@@ -90,11 +91,76 @@ def pdo_of_cob_id(cob_id: int) -> tuple[bool, int, int] | None:
     return None
 
 
+# --- object indices: the only place the CiA 301 / 402 / 406 numbers are written ---------------
+#: CiA 301 7.4.3: the communication profile area; 2000h..5FFFh is manufacturer specific.
+COMMUNICATION_AREA = range(0x1000, 0x2000)
+MANUFACTURER_AREA = range(0x2000, 0x6000)
+
+
+class Cia301(IntEnum):
+    """Objects of the communication profile (CiA 301 7.5.2) the bridge and drive use."""
+
+    DEVICE_TYPE = 0x1000
+    ERROR_REGISTER = 0x1001
+    COB_ID_SYNC = 0x1005
+    COMMUNICATION_CYCLE_PERIOD = 0x1006
+    MANUFACTURER_DEVICE_NAME = 0x1008
+    STORE_PARAMETERS = 0x1010
+    RESTORE_DEFAULT_PARAMETERS = 0x1011
+    CONSUMER_HEARTBEAT_TIME = 0x1016
+    PRODUCER_HEARTBEAT_TIME = 0x1017
+    IDENTITY = 0x1018  # :01 vendor-ID, :02 product code, :03 revision, :04 serial number
+    SDO_SERVER_PARAMETER = 0x1200
+    RPDO_COMMUNICATION = 0x1400  # RPDO n: + n - 1
+    RPDO_MAPPING = 0x1600
+    TPDO_COMMUNICATION = 0x1800
+    TPDO_MAPPING = 0x1A00
+
+
+class Cia402(IntEnum):
+    """Objects of the drive profile (CiA 402-2) the bridge and drive use."""
+
+    ABORT_CONNECTION_OPTION = 0x6007
+    ERROR_CODE = 0x603F
+    CONTROLWORD = 0x6040
+    STATUSWORD = 0x6041
+    QUICK_STOP_OPTION = 0x605A
+    FAULT_REACTION_OPTION = 0x605E
+    MODES_OF_OPERATION = 0x6060
+    MODES_OF_OPERATION_DISPLAY = 0x6061
+    POSITION_ACTUAL_VALUE = 0x6064
+    VELOCITY_ACTUAL_VALUE = 0x606C
+    MAX_TORQUE = 0x6072
+    MOTOR_RATED_TORQUE = 0x6076
+    TORQUE_ACTUAL_VALUE = 0x6077
+    PROFILE_ACCELERATION = 0x6083
+    PROFILE_DECELERATION = 0x6084
+    QUICK_STOP_DECELERATION = 0x6085
+    POSITION_ENCODER_RESOLUTION = 0x608F  # :01 increments, :02 motor revolutions
+    GEAR_RATIO = 0x6091  # :01 motor revolutions, :02 shaft revolutions
+    FEED_CONSTANT = 0x6092  # :01 feed, :02 shaft revolutions
+    POSITION_FACTOR = 0x6093  # :01 numerator, :02 divisor (older drives)
+    VELOCITY_ENCODER_FACTOR = 0x6094
+    VELOCITY_FACTOR_1 = 0x6095
+    VELOCITY_FACTOR = 0x6096
+    TORQUE_OFFSET = 0x60B2
+    INTERPOLATION_TIME_PERIOD = 0x60C2
+    ADDITIONAL_POSITION_ACTUAL_VALUE = 0x60E4  # :01.. a second measuring system (the load)
+    TARGET_VELOCITY = 0x60FF
+    SUPPORTED_DRIVE_MODES = 0x6502
+
+
+class Cia406(IntEnum):
+    """Objects of the encoder profile (CiA 406) of an external load encoder node."""
+
+    POSITION_VALUE = 0x6004
+
+
 # --- PDO parameter objects (CiA 301 7.5.2.35-38): PDO n has n-1 added to its base ----------
-RPDO_COMM_BASE = 0x1400
-RPDO_MAPPING_BASE = 0x1600
-TPDO_COMM_BASE = 0x1800
-TPDO_MAPPING_BASE = 0x1A00
+RPDO_COMM_BASE = Cia301.RPDO_COMMUNICATION
+RPDO_MAPPING_BASE = Cia301.RPDO_MAPPING
+TPDO_COMM_BASE = Cia301.TPDO_COMMUNICATION
+TPDO_MAPPING_BASE = Cia301.TPDO_MAPPING
 #: The last index of the four PDO parameter areas (512 TPDO mappings end at 1BFFh).
 PDO_PARAMETERS_END = 0x1BFF
 
@@ -170,6 +236,67 @@ def nmt_command_for(data: bytes | bytearray, node_id: int) -> NmtCommand | None:
     except ValueError:
         allowed = ", ".join(f"0x{c:02X}" for c in NmtCommand)
         raise ValueError(f"NMT command 0x{specifier:02X} ignored; allowed {allowed}") from None
+
+
+# --- master supervision (CiA 301 7.2.8.3.2 heartbeat, CiA 402 6007h) ----------------------------
+#: Consumer heartbeat time (ARRAY of UNSIGNED32: node-ID << 16 | ms) and producer heartbeat
+#: time (UNSIGNED16, ms) of every CANopen device (CiA 301 7.5.2.19/20).
+HEARTBEAT_CONSUMER_INDEX = Cia301.CONSUMER_HEARTBEAT_TIME
+HEARTBEAT_PRODUCER_INDEX = Cia301.PRODUCER_HEARTBEAT_TIME
+#: CiA 402 abort connection option code (INTEGER16): what a drive does when it loses its
+#: master (heartbeat or life guarding lost, NMT Stopped entered, reset communication, bus-off).
+ABORT_CONNECTION_INDEX = Cia402.ABORT_CONNECTION_OPTION
+#: A consumer's time is this many of the producer's periods: one heartbeat may be lost and
+#: the next come late by half a period before the consumer reacts (both ends: the bridge
+#: watches the drive's 100 ms with 250 ms, the drive the bridge's with 2.5 x its 1017h).
+HEARTBEAT_CONSUMER_MARGIN = 2.5
+#: The node-ID field of a 1016h entry is bits 16..23; bits 24..31 are reserved (0).
+HEARTBEAT_CONSUMER_MAX = 0x007F_FFFF
+
+
+class AbortConnection(IntEnum):
+    """6007h values of CiA 402 (negative values are manufacturer specific)."""
+
+    NO_ACTION = 0
+    FAULT = 1  # fault signal: Fault Reaction Active, then Fault
+    DISABLE_VOLTAGE = 2  # the power stage off at once: the axis coasts
+    QUICK_STOP = 3  # the quick stop ramp (6085h), then per 605Ah
+
+
+def heartbeat_consumer_entry(node_id: int, time_ms: int) -> int:
+    """A 1016h entry: ``node_id`` watched with ``time_ms`` (1..65535; 0 switches it off)."""
+    if not 0 <= time_ms <= 0xFFFF:
+        raise ValueError(f"consumer heartbeat time {time_ms} ms: allowed 0..65535")
+    return (_node(node_id) << 16) | time_ms
+
+
+def split_heartbeat_consumer_entry(entry: int) -> tuple[int, int]:
+    """(node-ID, time in ms) of a 1016h entry (node-ID 0 or time 0: the entry is unused)."""
+    return (entry >> 16) & 0xFF, entry & 0xFFFF
+
+
+def consumer_time_ms(producer_ms: int) -> int:
+    """The consumer time that watches a producer of ``producer_ms``: the margin, rounded up."""
+    return min(0xFFFF, math.ceil(producer_ms * HEARTBEAT_CONSUMER_MARGIN))
+
+
+#: The contract's drive (1018h vendor 0, product 402h; plant_sim.drive) has a set-point
+#: watchdog: SYNCs in Operation enabled without an RPDO before 6007h acts (UNSIGNED8, 0 off).
+CONTRACT_SETPOINT_TIMEOUT = (0x2102, 0)
+
+
+# --- EMCY error codes (CiA 301 table 21; the drive's use of them: plant_sim.drive.protection) ---
+EMCY_NO_ERROR = 0x0000
+#: Internal software: the plant behind the simulated drive (an FMU) failed while it stepped.
+EMCY_SOFTWARE = 0x6100
+EMCY_SENSOR = 0x7300
+EMCY_PDO_LENGTH = 0x8210
+EMCY_SYNC_LENGTH = 0x8240
+EMCY_RPDO_TIMEOUT = 0x8250
+#: Communication, generic: the drive left NMT Operational while enabled (6007h acted).
+EMCY_COMMUNICATION = 0x8100
+#: Life guard error or heartbeat error: the consumer missed the master's heartbeat (6007h).
+EMCY_HEARTBEAT = 0x8130
 
 
 # --- CiA 402 controlword / statusword bits -----------------------------------------------------

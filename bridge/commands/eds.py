@@ -10,6 +10,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from virtual_bus.atomic import write_atomic
+
 from .. import od as objdict
 from ..eds import render_eds
 from .common import PROG
@@ -46,6 +48,6 @@ def run(args: argparse.Namespace) -> int:
     if args.out is None:
         sys.stdout.write(text)
         return 0
-    args.out.write_text(text, encoding="utf-8")
+    write_atomic(args.out, text)
     print(f"wrote {args.out}")
     return 0

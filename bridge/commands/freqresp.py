@@ -13,6 +13,7 @@ import numpy as np
 
 from cmdline import cli
 from regulator.frequency_response import Multisine
+from virtual_bus.atomic import replacing
 
 from ..commission.session import CommissioningStopped
 
@@ -114,7 +115,8 @@ def write_results(
     if fr.admittance is not None:
         columns += [np.abs(fr.admittance.response), fr.admittance.std]
         header += ",admittance_magnitude,admittance_std"
-    np.savetxt(out / "freqresp.csv", np.column_stack(columns), delimiter=",", header=header)
+    with replacing(out / "freqresp.csv") as tmp:
+        np.savetxt(tmp, np.column_stack(columns), delimiter=",", header=header)
     files = [out / "freqresp.json", out / "freqresp.csv"]
     if available():
         bode_figure(fr, out / "bode.png", title, reference)

@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 from cmdline import cli
+from virtual_bus.atomic import write_atomic
 from virtual_bus.errors import RealTimeRefused
 from virtual_bus.realtime import check_cpu, cpu_number
 
@@ -65,5 +66,5 @@ def run(args: argparse.Namespace) -> int:
         f"{result.over_500us} later than 500 µs; hypervisor steal {steal_ms} ms"
     )
     if args.json:
-        args.json.write_text(json.dumps(json_doc(result, steal_ms), indent=2) + "\n")
+        write_atomic(args.json, json.dumps(json_doc(result, steal_ms), indent=2) + "\n")
     return 0

@@ -7,23 +7,26 @@ from pathlib import Path
 
 from cmdline import cli
 from virtual_bus import BusConfig
+from virtual_bus.formats.drive_profile import load_profile
 from virtual_bus.realtime import add_realtime_options, realtime_options
 
 from .. import od as objdict
-from ..errors import BridgeError
+from ..errors import BridgeError, DriveSetupError
 from ..interpolator import Move, load_move_file, parse_move
 from ..master import DriveSetup
 from ..node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
-from ..profile import load_profile
 from ..timing import TimeMode
 from .common import add_clock_argument, default_store_path, regulated_axis
 
 NAME = "run"
 HELP = "run the bridge against a drive on a CAN interface (real time)"
 DESCRIPTION = (
-    "Configure the drive over SDO, bring it to Operation Enabled, then close the loop every "
-    "SYNC until the moves are done, --seconds pass, a fault stops the axis or Ctrl-C. Exit 0: "
-    "done; 1: stopped by a fault or a failure; 2: bad arguments."
+    "Configure the drive over SDO (its supervision of the bridge included: heartbeat consumer "
+    "1016h, 6007h), bring it to Operation Enabled, then close the loop every SYNC until the "
+    "moves are done, --seconds pass, a fault stops the axis, or SIGINT/SIGTERM. At the end "
+    "the stop reaches the drive (by SYNC, else SDO, else NMT) and the drive is confirmed at "
+    "standstill. Exit 0: done; 1: stopped by a fault, not confirmed at standstill, or a "
+    "failure; 2: bad arguments."
 )
 
 
@@ -128,16 +131,38 @@ def run(args: argparse.Namespace) -> int:
     store = options.bridge.store_path
     if store is not None and (store.is_dir() or not store.parent.is_dir()):
         raise cli.UsageError(f"--store {store}: not a file in an existing directory")
-    result = run_bridge(options)
+    try:
+        result = run_bridge(options)
+    except KeyboardInterrupt:
+        raise DriveSetupError(
+            "interrupted during the start-up (the drive's supervision of the bridge, where it "
+            "was configured, stops it)"
+        ) from None
+    drive = args.drive_id
     print(
         f"{result.cycles} cycles; state {result.state.name}; missed TPDOs "
         f"{result.missed_tpdos}, late {result.late_tpdos}, skipped SYNCs {result.skipped_syncs}"
     )
+    for line in result.supervision:
+        print(f"drive {drive} watches the bridge: {line}")
+    for note in result.supervision_notes:
+        print(f"warning: {note}")
+    if result.interrupted is not None:
+        print(f"{result.interrupted}: the run ended")
+    if result.halt is not None:
+        print(result.halt.describe(drive))
+    if result.restored:
+        print(f"drive {drive}: given back as before the start-up: {', '.join(result.restored)}")
+    for why in result.not_restored:
+        print(f"warning: drive {drive}: not given back: {why}")
     print(
         "refused frames (2110h): "
         + ", ".join(f"{fault.name.lower()} {n}" for fault, n in result.refused_frames)
     )
     if result.stop_message != "none":
         print(f"stopped: {result.stop_message}")
+        return 1
+    if not result.stopped_safely:
+        print(f"stopped: drive {drive} not confirmed at standstill out of Operation Enabled")
         return 1
     return 0

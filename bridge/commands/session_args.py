@@ -11,11 +11,11 @@ from pathlib import Path
 
 from cmdline import cli
 from virtual_bus import BusConfig, open_bus
+from virtual_bus.formats.drive_profile import load_profile
 
 from .. import od as objdict
 from ..node import Bridge, BridgeConfig
 from ..objects import params_with_store
-from ..profile import load_profile
 from ..run import RunOptions, params_for
 from ..scaling import LOAD_INCREMENTS_PER_UNIT
 from ..store import ParameterStore

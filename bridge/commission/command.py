@@ -38,7 +38,9 @@ from canopen.objectdictionary import datatypes as dt
 
 from cmdline import cli
 from virtual_bus import BusConfig, open_bus
-from virtual_bus.contract import SdoAbort
+from virtual_bus.atomic import write_atomic
+from virtual_bus.contract import COMMUNICATION_AREA, Cia301, SdoAbort
+from virtual_bus.formats.eds import check_eds_file
 from virtual_bus.shipped import DRIVE_EDS
 
 from .. import od as bridge_od
@@ -64,7 +66,7 @@ HELP = "read, write, dump (DCF) and load (DCF) any object of a node over SDO"
 KNOWN_EDS = (bridge_od.DEFAULT_EDS_PATH, DRIVE_EDS)
 READABLE = {"ro", "rw", "rwr", "rww", "const"}
 WRITABLE = {"rw", "rwr", "rww", "wo"}
-STORE_COMMANDS = {0x1010, 0x1011}
+STORE_COMMANDS = {Cia301.STORE_PARAMETERS, Cia301.RESTORE_DEFAULT_PARAMETERS}
 
 
 def _timeout(text: str) -> float:
@@ -128,8 +130,11 @@ def connect(args: argparse.Namespace) -> Iterator[canopen.Network]:
 
 
 def load_eds(path: Path, node_id: int) -> canopen.ObjectDictionary:
+    """The node's EDS or DCF; a file that is not one is refused in one line before any bus
+    is opened (virtual_bus.formats.eds)."""
     if not path.is_file():
         raise CommissionInputError(f"--eds {path}: no such file")
+    check_eds_file(path)
     try:
         return canopen.import_od(str(path), node_id)
     except Exception as exc:  # configparser and canopen raise assorted types
@@ -155,18 +160,26 @@ def identify(network: canopen.Network, node_id: int, timeout_s: float) -> Path:
     product: int | None = None
     name: str | None = None
     try:
-        shown = int.from_bytes(access.read_raw(_u32_var(0x1000, 0, "Device type"))[:4], "little")
+        shown = int.from_bytes(
+            access.read_raw(_u32_var(Cia301.DEVICE_TYPE, 0, "Device type"))[:4], "little"
+        )
         with contextlib.suppress(NodeAccessError):
-            raw = access.read_raw(_u32_var(0x1018, 2, "Product code"))
+            raw = access.read_raw(_u32_var(Cia301.IDENTITY, 2, "Product code"))
             product = int.from_bytes(raw[:4], "little")
         with contextlib.suppress(NodeAccessError):
-            raw = access.read_raw(ODVariable("Manufacturer device name", 0x1008, 0))
+            raw = access.read_raw(
+                ODVariable("Manufacturer device name", Cia301.MANUFACTURER_DEVICE_NAME, 0)
+            )
             name = raw.decode("ascii", "replace")
     finally:
         del network[node_id]
     for path in KNOWN_EDS:
         od = load_eds(path, node_id)
-        wanted = (_default(od, 0x1000, 0), _default(od, 0x1018, 2), _default(od, 0x1008, 0))
+        wanted = (
+            _default(od, Cia301.DEVICE_TYPE, 0),
+            _default(od, Cia301.IDENTITY, 2),
+            _default(od, Cia301.MANUFACTURER_DEVICE_NAME, 0),
+        )
         if wanted == (shown, product, name):
             return path
     product_text = "none" if product is None else f"0x{product:08X}"
@@ -258,7 +271,7 @@ def _dump(args: argparse.Namespace) -> int:
         no_data: list[NodeAccessError] = []
         for var in variables(od):
             # 0001h-0FFFh are data type definitions (an EDS's [DummyUsage]), not parameters
-            if var.access_type not in READABLE or var.index < 0x1000:
+            if var.access_type not in READABLE or var.index < COMMUNICATION_AREA.start:
                 continue
             try:
                 value = access.read(var)
@@ -270,7 +283,7 @@ def _dump(args: argparse.Namespace) -> int:
                 continue
             count += 1
             values[key_of(var, od)] = value_text(var, value)
-            if (var.index, var.subindex) == (0x1018, 4):
+            if (var.index, var.subindex) == (Cia301.IDENTITY, 4):
                 serial = int(value)
         info = od.device_information
         commissioning = Commissioning(
@@ -288,7 +301,7 @@ def _dump(args: argparse.Namespace) -> int:
             values=values,
             commissioning=commissioning,
         )
-    out.write_text(text, encoding="utf-8")
+    write_atomic(out, text)
     print(f"wrote {out}: {count} objects of node {args.node_id} (EDS {eds_path.name})")
     for exc in no_data:
         print(f"no value (EDS default kept): {exc}", file=sys.stderr)
@@ -338,7 +351,7 @@ def _rollback(
 
 def _load(args: argparse.Namespace) -> int:
     with open_node(args) as (access, od):
-        if args.save and not _has(od, 0x1010, 1):
+        if args.save and not _has(od, Cia301.STORE_PARAMETERS, 1):
             raise CommissionInputError(
                 f"--save: node {args.node_id}'s EDS has no 1010h:01 (store parameters)"
             )
@@ -390,7 +403,7 @@ def _load(args: argparse.Namespace) -> int:
             + ")"
         )
         if args.save:
-            access.write(od[0x1010][1], SIGNATURES["save"])
+            access.write(od[Cia301.STORE_PARAMETERS][1], SIGNATURES["save"])
             print(f"node {args.node_id}: stored (1010h:01 = save)")
     return 0
 

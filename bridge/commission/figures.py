@@ -12,7 +12,11 @@ from typing import Any
 import numpy as np
 
 from regulator.tuning import SearchResult, TrialResult
+<<<<<<< HEAD
 from regulator.units import fine_scale
+=======
+from virtual_bus.atomic import replacing, write_atomic
+>>>>>>> main
 
 from .freqresp import FrequencyResponse
 
@@ -74,7 +78,8 @@ def bode_figure(
     for ax in (ax_m, ax_p):
         ax.grid(True, which="both", lw=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix[1:])
     plt.close(fig)
 
 
@@ -137,7 +142,8 @@ def trials_figure(result: SearchResult, cycle_s: float, path: Path) -> None:
     for ax in flat[len(trials) + 1 :]:
         ax.axis("off")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, dpi=100, format=path.suffix[1:])
     plt.close(fig)
 
 
@@ -206,4 +212,4 @@ def _clean(value: object) -> object:
 
 
 def write_json(path: Path, data: dict[str, Any]) -> None:
-    path.write_text(json.dumps(_clean(data), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    write_atomic(path, json.dumps(_clean(data), indent=2, allow_nan=False) + "\n")

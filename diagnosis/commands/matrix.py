@@ -14,6 +14,8 @@ from pathlib import Path
 
 from cmdline import cli
 from cmdline.progress import Progress
+from virtual_bus.atomic import write_atomic
+from virtual_bus.formats.records import RecordFile
 
 from ..matrix import (
     PLANTS,
@@ -83,7 +85,9 @@ def run(args: argparse.Namespace) -> int:
             raise cli.UsageError(f"--cases: unknown {unknown}; known: {sorted(known)}")
         cases = [c for c in cases if c.name in args.cases]
     progress = Progress(f"diagnosis {NAME}", quiet=args.quiet)
-    sink = open(args.json, "w", encoding="utf-8") if args.json else None  # noqa: SIM115
+    # a JSON line per case as it completes: a kill leaves whole lines, the last perhaps cut
+    # short without its line end (virtual_bus.formats.records)
+    sink = RecordFile(args.json, pad=False) if args.json else None
 
     with progress.bar(len(cases), "diagnoses", unit="case") as bar:
 
@@ -91,8 +95,7 @@ def run(args: argparse.Namespace) -> int:
             bar.update()
             bar.set_description(f"{r.name}: {r.left_out or 'nothing'} ({r.seconds:.0f} s)")
             if sink is not None:
-                sink.write(json.dumps(asdict(r)) + "\n")
-                sink.flush()
+                sink.write_lines([json.dumps(asdict(r)) + "\n"])
 
         failed: list[str] = []
 
@@ -124,5 +127,5 @@ def run(args: argparse.Namespace) -> int:
     )
     print(text, end="")
     if args.out is not None:
-        (args.out / f"{stem}.md").write_text(text, encoding="utf-8")
+        write_atomic(args.out / f"{stem}.md", text)
     return 0

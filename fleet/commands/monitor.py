@@ -22,6 +22,7 @@ from pathlib import Path
 from cmdline import cli
 from cmdline.progress import Progress
 from plant_sim.errors import SchedulerError
+from virtual_bus.atomic import write_atomic
 
 from ..demo_fleet import FleetSpec, generate
 from ..errors import FleetError, FleetMapError
@@ -158,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     for r in result.results:
+        if r.warning:
+            print(f"monitor: warning: {r.warning}", file=sys.stderr)
         if not r.ok:
             print(f"monitor: skipped {r.error}", file=sys.stderr)
     rate = len(result.results) / result.elapsed_s * 60 if result.elapsed_s > 0 else 0.0
@@ -170,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {i:2d}. {t.axis_id}: {'; '.join(t.reasons)}")
     if truth_file is not None:
         matrix = confusion(result.ranked, truth_file)
-        (args.out / "confusion.json").write_text(json.dumps(matrix, indent=1))
+        write_atomic(args.out / "confusion.json", json.dumps(matrix, indent=1))
         print("demo fleet, axes by truth (rows) and monitor verdict (columns):")
         print(confusion_markdown(matrix))
     print("wrote " + ", ".join(str(f) for f in result.files))

@@ -27,6 +27,7 @@ import numpy as np
 
 from cmdline.progress import Progress
 from plant_sim.physics.simulate import References, simulate
+from virtual_bus.atomic import write_atomic
 from virtual_bus.formats.axis import dump_axis, load_axis
 from virtual_bus.formats.trace import Trace
 from virtual_bus.shipped import PAPER_AXIS
@@ -79,7 +80,7 @@ def _pool(folder: Path, n: int) -> tuple[list[Path], Path]:
         Trace({c: trace[c] for c in TRACE_COLUMNS}).to_csv(p)
         paths.append(p)
     axis_file = folder / "axis.toml"
-    axis_file.write_text(dump_axis(base))
+    write_atomic(axis_file, dump_axis(base))
     return paths, axis_file
 
 
@@ -195,5 +196,5 @@ def run(args: argparse.Namespace) -> int:
     text = json.dumps(figures, indent=1)
     print(text)
     if args.json:
-        args.json.write_text(text + "\n")
+        write_atomic(args.json, text + "\n")
     return 0

@@ -4,8 +4,8 @@
 (:mod:`hil.sweep.tasks`) once per seed, each on the axis ``seed`` draws (the FMU's other
 parameters as given), as Dask tasks (:mod:`plant_sim.parallel`: local processes by default,
 ``--scheduler`` for a cluster). Every finished seed is one row written at once to
-``DIR/parts/seed-NNNNNNN.parquet`` (a temporary file, fsync, rename: a killed sweep leaves
-whole parts only); a sweep started again with the same ``--out`` and the same configuration
+``DIR/parts/seed-NNNNNNN.parquet`` (:mod:`virtual_bus.atomic`: a killed sweep leaves whole
+parts only); a sweep started again with the same ``--out`` and the same configuration
 (``DIR/sweep.json``: task, FMU content hash, parameters, mapping, task options) runs only the
 seeds without a part. At the end the parts become ``DIR/results.parquet`` (sorted by seed)
 and the task's summary table (``DIR/summary.json``, printed).
@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 import time
 import traceback
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -31,6 +29,7 @@ from typing import Any
 
 from plant_sim.errors import PlantSimError
 from plant_sim.fmu.model import FmuSpec
+from virtual_bus.atomic import replacing, write_atomic
 
 from .tasks import TASKS, Task
 
@@ -156,7 +155,7 @@ class Sweep:
                     f"{', '.join(differ)}); give another --out or the same options"
                 )
         else:
-            write_atomic(path, (json.dumps(config, indent=2) + "\n").encode())
+            write_atomic(path, json.dumps(config, indent=2) + "\n")
         return [s for s in self.seeds if not self.part(s).exists()]
 
     def items(self, seeds: Iterable[int]) -> Iterable[SweepItem]:
@@ -169,16 +168,8 @@ class Sweep:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        table = pa.Table.from_pylist([row])
-        with tempfile.NamedTemporaryFile(dir=self.parts, suffix=".tmp", delete=False) as f:
-            tmp = Path(f.name)
-        try:
-            pq.write_table(table, tmp)
-            with tmp.open("rb") as f:
-                os.fsync(f.fileno())
-            os.replace(tmp, self.part(int(row["seed"])))
-        finally:
-            tmp.unlink(missing_ok=True)
+        with replacing(self.part(int(row["seed"])), durable=True) as tmp:
+            pq.write_table(pa.Table.from_pylist([row]), tmp)
 
     def table(self) -> list[dict[str, Any]]:
         """Every row of this sweep's seeds that has a part, sorted by seed."""
@@ -200,13 +191,8 @@ class Sweep:
         task: Task = TASKS[self.task]
         columns = sorted({k for r in rows for k in r}, key=_column_order)
         table = pa.Table.from_pylist([{c: r.get(c) for c in columns} for r in rows])
-        with tempfile.NamedTemporaryFile(dir=self.out, suffix=".tmp", delete=False) as f:
-            tmp = Path(f.name)
-        try:
+        with replacing(self.out / "results.parquet") as tmp:
             pq.write_table(table, tmp)
-            os.replace(tmp, self.out / "results.parquet")
-        finally:
-            tmp.unlink(missing_ok=True)
         summary = {
             "task": self.task,
             "fmu": self.spec.describe(),
@@ -216,7 +202,7 @@ class Sweep:
             "seconds_per_seed": _spread([r["seconds"] for r in rows]),
             "figures": task.summarize(rows),
         }
-        write_atomic(self.out / "summary.json", (json.dumps(summary, indent=2) + "\n").encode())
+        write_atomic(self.out / "summary.json", json.dumps(summary, indent=2) + "\n")
         return summary
 
 
@@ -245,20 +231,6 @@ def _ranges(seeds: Sequence[int]) -> str:
     if start is not None:
         out.append(f"{start}-{prev}" if start != prev else str(start))
     return ",".join(out)
-
-
-def write_atomic(path: Path, data: bytes) -> None:
-    """``data`` into ``path``: a temporary file beside it, fsync, rename (a kill leaves the
-    old file or the new one, never a part of either)."""
-    with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp", delete=False) as f:
-        tmp = Path(f.name)
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    try:
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def run_sweep(

@@ -20,6 +20,7 @@ from dataclasses import asdict, is_dataclass
 
 from cmdline import cli
 from cmdline.progress import Progress
+from virtual_bus.atomic import write_atomic
 
 from ..paper.outputs import LIMIT_CYCLE_VISCOUS
 from ..paper.scenarios import SectionX, run_section_x
@@ -129,5 +130,5 @@ def run(args: argparse.Namespace) -> int:
             results[func] = asdict(value) if is_dataclass(value) else value  # type: ignore[arg-type]
     print("\n".join(_lines(results)))
     if args.json:
-        args.json.write_text(json.dumps(results, indent=2, default=str) + "\n")
+        write_atomic(args.json, json.dumps(results, indent=2, default=str) + "\n")
     return 0

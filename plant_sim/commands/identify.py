@@ -13,6 +13,7 @@ from pathlib import Path
 
 from cmdline import cli
 from cmdline.progress import Progress
+from virtual_bus.atomic import write_atomic
 from virtual_bus.formats.axis import dump_axis
 from virtual_bus.formats.trace import check_time_base, read_trace
 
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     text = json.dumps(summary, indent=2)
     print(text)
     if args.json:
-        args.json.write_text(text + "\n", encoding="utf-8")
+        write_atomic(args.json, text + "\n")
     if args.out:
         header = (
             f"Identified by `python -m plant_sim identify {args.recording} --axis {args.axis}`\n"
@@ -104,5 +105,5 @@ def run(args: argparse.Namespace) -> int:
                 f"{k}: start {result.start[k]:.6g} -> {v:.6g}" for k, v in result.values.items()
             )
         )
-        args.out.write_text(dump_axis(result.axis, header), encoding="utf-8")
+        write_atomic(args.out, dump_axis(result.axis, header))
     return 0

@@ -19,6 +19,7 @@ import numpy as np
 
 from cmdline import cli
 from cmdline.progress import Progress, silent
+from virtual_bus.atomic import replacing, write_atomic
 from virtual_bus.formats.axis import AxisConfig
 
 from ..paper.outputs import LIMIT_CYCLE_VISCOUS, summarize
@@ -150,7 +151,8 @@ def _plot(cells: list[Cell], path: Path, viscous: float, axis_name: str) -> None
     ax.legend(fontsize=8, loc="upper left")
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix[1:])
     plt.close(fig)
 
 
@@ -164,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     )
     cells = sweep(axis, args.kv, backlash, progress)
     args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "sweep.csv", "w", newline="") as fh:
+    with replacing(args.out / "sweep.csv") as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["kv_per_s", "backlash_m", "frequency_hz", "amplitude_m", "in_band"])
         for c in cells:
@@ -181,11 +183,12 @@ def run(args: argparse.Namespace) -> int:
             row.append("none" if c.frequency_hz is None else f"{c.frequency_hz:.2f}")
         lines.append("| " + " | ".join(row) + " |")
     table = "\n".join(lines)
-    (args.out / "sweep.md").write_text(
-        table + "\n\n```json\n" + json.dumps(v, indent=2) + "\n```\n"
+    write_atomic(
+        args.out / "sweep.md", table + "\n\n```json\n" + json.dumps(v, indent=2) + "\n```\n"
     )
-    (args.out / "sweep.json").write_text(
-        json.dumps({"verdicts": v, "cells": [c.__dict__ for c in cells]}, indent=2)
+    write_atomic(
+        args.out / "sweep.json",
+        json.dumps({"verdicts": v, "cells": [c.__dict__ for c in cells]}, indent=2),
     )
     _plot(cells, args.out / "sweep.png", args.viscous, str(args.axis))
     print(table)

@@ -71,6 +71,7 @@ from pathlib import Path
 
 import numpy as np
 
+from virtual_bus.atomic import write_atomic
 from virtual_bus.formats.axis import (
     AxisConfig,
     AxisKind,
@@ -492,6 +493,6 @@ def import_xl330(sources: Sequence[str | Path], out_dir: str | Path) -> ImportRe
                 else "nominal = BAM's m1 WITHOUT Coulomb friction and q_offset (diagnosis start)",
             )
             target = out / f"xl330_kp{kp}_{what}.toml"
-            target.write_text(dump_axis(axis, header), encoding="utf-8")
+            write_atomic(target, dump_axis(axis, header))
             axis_files.append(target)
     return ImportResult(done, axis_files)

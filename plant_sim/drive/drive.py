@@ -23,10 +23,18 @@ device error: EMCY 6100h (internal software) naming the call, Fault, and the pla
 stepped again until the drive is reset (NMT reset node does not revive it: a new drive does).
 
 So a set point computed from the measurements of SYNC k acts from SYNC k+1 on: the one-cycle
-PDO delay of ``KernelOptions(setpoint_delay_cycles=1)``. The drive has no clock of its own:
-time is the number of SYNCs times the position cycle. In ``TimeMode.LOCKSTEP`` the heartbeat
-follows that simulated time too; in ``TimeMode.REAL_TIME`` (SYNC from a wall clock elsewhere)
-it is sent by python-can's periodic task on the wall clock.
+PDO delay of ``KernelOptions(setpoint_delay_cycles=1)``. In ``TimeMode.LOCKSTEP`` SYNC is the
+drive's only clock: time is the number of SYNCs times the position cycle, the heartbeat and
+the heartbeat consumer follow it. In ``TimeMode.REAL_TIME`` (SYNC from a wall clock elsewhere)
+the heartbeat is sent on the wall clock, the consumer watches the master on it
+(:attr:`SimulatedDrive.wall`), and a drive served in a loop of its own keeps its own clock:
+when SYNC stops, the loop runs position cycles without it (:meth:`SimulatedDrive.free_cycle`,
+``plant_sim.drive.process``), so the motor goes on as a real one would, on its last set point,
+until a supervision stops it.
+
+The master is supervised as CiA 301/402 say: the heartbeat consumer 1016h:01 watches its
+heartbeat, and a lost heartbeat, the master's boot-up, or an NMT command that takes the
+enabled drive out of Operational act through 6007h with an EMCY naming the cause.
 
 SDO writes act at once (e.g. a controlword written by SDO changes the state immediately);
 only RPDO contents wait for the next SYNC.
@@ -38,6 +46,7 @@ import contextlib
 import logging
 import math
 import threading
+import time
 from collections.abc import Callable, Iterator
 from types import TracebackType
 
@@ -49,6 +58,12 @@ from virtual_bus.contract import (
     CAN_ID_MASK,
     COB_ID_INVALID,
     COB_ID_NO_RTR,
+    COMMUNICATION_AREA,
+    EMCY_COMMUNICATION,
+    EMCY_HEARTBEAT,
+    HEARTBEAT_BASE,
+    HEARTBEAT_CONSUMER_INDEX,
+    HEARTBEAT_LENGTH,
     NMT_COB_ID,
     NMT_LENGTH,
     SDO_LENGTH,
@@ -76,7 +91,14 @@ from .node import (
     gated,
 )
 from .pdo import PdoEngine, PdoKind
-from .protection import EMCY_PDO_LENGTH, EMCY_SYNC_LENGTH, ErrorList, emcy_data_int32
+from .protection import (
+    EMCY_PDO_LENGTH,
+    EMCY_SYNC_LENGTH,
+    ErrorList,
+    HeartbeatConsumer,
+    connection_lost_data,
+    emcy_data_int32,
+)
 from .servo import ServoAxis
 
 logger = logging.getLogger(__name__)
@@ -91,6 +113,14 @@ _SCANNED = frozenset(NodeScanner.SERVICES)
 # (callgrind).
 _OPERATIONAL = NmtState.OPERATIONAL
 
+
+#: The NMT command that leads from Operational to each state (the EMCY of a lost connection
+#: names it): stop, enter pre-operational, a reset (communication or node).
+_NMT_COMMAND_OF = {
+    NmtState.STOPPED: NmtCommand.STOP,
+    NmtState.PRE_OPERATIONAL: NmtCommand.ENTER_PRE_OPERATIONAL,
+    NmtState.INITIALISING: NmtCommand.RESET_COMMUNICATION,
+}
 
 #: At most this many frames received before the boot-up are dropped by :meth:`start`
 #: (bounded: traffic that goes on cannot hold the boot).
@@ -146,6 +176,7 @@ class SimulatedDrive:
                 "give a canopen.Network or a can.BusABC"
             )
         self._plant = plant if plant is not None else AxisPlant(axis)
+        self._own_heartbeat = HEARTBEAT_BASE + node_id
         self._cycle_us = round(axis.control.position_cycle * 1e6)
         self._callback_errors: list[BaseException] = []
         self._started = False
@@ -197,6 +228,17 @@ class SimulatedDrive:
             O.COB_ID_SYNC, validate=self._check_sync_cob_id, changed=self._sync_cob_id_changed
         )
         self._table.on(O.HEARTBEAT_TIME, changed=self._heartbeat_time_changed)
+        #: the master's heartbeat, watched (1016h:01); its clock: simulated time in lockstep,
+        #: :attr:`wall` in real time
+        self._consumer = HeartbeatConsumer()
+        self._consumer_cob_id = 0
+        self._lockstep = self.config.time_mode is TimeMode.LOCKSTEP
+        #: the real-time clock of the heartbeat consumer (s; a harness may inject its own)
+        self.wall: Callable[[], float] = time.monotonic
+        #: position cycles of the drive's own clock, run while no SYNC came (real time)
+        self.free_cycles = 0
+        self._on_master_heartbeat_cb = self._gated(self._guarded(self._on_master_heartbeat))
+        self._table.on(O.HEARTBEAT_CONSUMER, changed=self._consumer_changed)
 
     # ------------------------------------------------------------------------------------------
     # set-up
@@ -250,6 +292,10 @@ class SimulatedDrive:
         if cob_id in self._pdo.rpdo_cob_ids():
             # the length against the mapping is checked at the SYNC (EMCY 8210, counted then)
             return None if nmt is NmtState.OPERATIONAL else FrameFault.NOT_IN_STATE
+        if HEARTBEAT_BASE < cob_id <= HEARTBEAT_BASE + 0x7F and cob_id != self._own_heartbeat:
+            # NMT error control of any other node is broadcast traffic a heartbeat consumer
+            # listens to (1016h names the one it watches), not a frame it does not know
+            return None if length == HEARTBEAT_LENGTH else FrameFault.BAD_LENGTH
         return FrameFault.UNKNOWN_COB_ID
 
     # ------------------------------------------------------------------------------------------
@@ -416,6 +462,9 @@ class SimulatedDrive:
             self._heartbeat.stop()
             self._unsubscribe_sync()
             self._pdo.unsubscribe_all()
+            if self._consumer_cob_id:
+                self._network.unsubscribe(self._consumer_cob_id, self._on_master_heartbeat_cb)
+                self._consumer_cob_id = 0
             del self._network[self.node_id]
             self._started = False
 
@@ -560,6 +609,96 @@ class SimulatedDrive:
         servo.advance()
         self._sync_count += 1
         self._heartbeat.tick(self._sync_count * self._cycle_us)
+        if self._consumer.last_us is not None:  # watching the master
+            self._check_master(self._now_us())
+
+    # ------------------------------------------------------------------------------------------
+    # the drive's own clock and its master (real time)
+    # ------------------------------------------------------------------------------------------
+    def free_cycle(self) -> bool:
+        """One position cycle of the drive's own clock, where no SYNC came (real time; the
+        serving loop calls it, ``plant_sim.drive.process``): the last set point held, the
+        encoder monitor and the ramps supervised, the physics stepped -- no PDOs (they go on
+        SYNC), the set point watchdog untouched (it counts SYNCs), 2103h unchanged. True when
+        the axis moved (a measuring system changed)."""
+        with self._lock:
+            servo = self._servo
+            servo.hold_measurements()
+            before = (self._table.read(O.POSITION_ACTUAL), self._table.read(O.LOAD_POSITION_ACTUAL))
+            servo.supervise_without_sync()
+            servo.advance()
+            self.free_cycles += 1
+            after = (self._table.read(O.POSITION_ACTUAL), self._table.read(O.LOAD_POSITION_ACTUAL))
+            return after != before
+
+    @property
+    def holding(self) -> bool:
+        """The power stage holds the axis, or a disturbance acts on it: its physics must go
+        on between SYNCs (power off and at rest, nothing changes)."""
+        with self._lock:
+            return self._servo.holding
+
+    def watch_master(self, now_s: float) -> float | None:
+        """Real time: check the master's heartbeat at the wall instant ``now_s``
+        (:attr:`wall`'s clock); returns when the watch runs out next (None: not watching)."""
+        with self._lock:
+            consumer = self._consumer
+            if consumer.last_us is None:
+                return None
+            self._check_master(round(now_s * 1e6))
+            deadline = consumer.deadline_us()
+            return None if deadline is None else deadline / 1e6
+
+    def _now_us(self) -> int:
+        """The drive's clock in µs: simulated time (lockstep) or :attr:`wall`."""
+        if self._lockstep:
+            return self._sync_count * self._cycle_us
+        return round(self.wall() * 1e6)
+
+    def _check_master(self, now_us: int) -> None:
+        consumer = self._consumer
+        last = consumer.last_us
+        if consumer.check(now_us):
+            assert last is not None
+            self._master_lost(
+                extra=0,
+                why=f"did not come: {(now_us - last) / 1000:g} ms after the last one on the "
+                f"drive's clock (consumer time {consumer.time_us / 1000:g} ms)",
+            )
+
+    def _master_lost(self, extra: int, why: str) -> None:
+        """The master's heartbeat ran out (``extra`` 0) or it booted (1): EMCY 8130h and the
+        6007h reaction (lock held)."""
+        option = self._table.value(O.ABORT_CONNECTION_OPTION)
+        data = connection_lost_data(HEARTBEAT_CONSUMER_INDEX, self._consumer.node_id, option, extra)
+        logger.warning(
+            "drive %d: the heartbeat of master %d %s; EMCY 8130h, 6007h = %d in %s",
+            self.node_id,
+            self._consumer.node_id,
+            why,
+            option,
+            self._servo.state.value,
+        )
+        self._servo.abort_connection(EMCY_HEARTBEAT, data)
+
+    def _on_master_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._lock:
+            if self._consumer.received(data[0], self._now_us()):
+                self._master_lost(extra=1, why="announced its boot-up: it restarted")
+            elif data[0]:
+                self._servo.connection_restored(EMCY_HEARTBEAT)
+
+    def _consumer_changed(self, entry: int) -> None:
+        """1016h:01 written: watch that node (a new watch; an old heartbeat error clears)."""
+        consumer = self._consumer
+        consumer.configure(entry)
+        if self._consumer_cob_id:
+            self._network.unsubscribe(self._consumer_cob_id, self._on_master_heartbeat_cb)
+            self._consumer_cob_id = 0
+        if consumer.node_id:
+            self._consumer_cob_id = HEARTBEAT_BASE + consumer.node_id
+            self._network.subscribe(self._consumer_cob_id, self._on_master_heartbeat_cb)
+        self._servo.connection_restored(EMCY_HEARTBEAT)
 
     def _unchanged(self, key: O.ObjectKey, value: int) -> bool:
         """Whether writing ``value`` to ``key`` would do nothing beyond storing it: the
@@ -651,6 +790,15 @@ class SimulatedDrive:
                 self._pdo.receive(can_id, bytes(data))
 
     def _nmt_state(self, old: NmtState, new: NmtState) -> None:
+        if old is NmtState.OPERATIONAL:
+            # CiA 402 6007h: NMT Stopped entered, reset communication (and Pre-operational: no
+            # set points any more) while enabled is a lost connection
+            if self._servo.state is State402.OPERATION_ENABLED:
+                option = self._table.value(O.ABORT_CONNECTION_OPTION)
+                data = connection_lost_data(0, _NMT_COMMAND_OF.get(new, 0), option)
+                self._servo.abort_connection(EMCY_COMMUNICATION, data)
+        elif new is NmtState.OPERATIONAL:
+            self._servo.connection_restored(EMCY_COMMUNICATION)
         if new is NmtState.INITIALISING:
             self._heartbeat.stop()
         elif old is NmtState.INITIALISING:
@@ -668,8 +816,9 @@ class SimulatedDrive:
         if command is NmtCommand.RESET_NODE:
             self._table.restore_defaults(0x2000, 0x9FFF, keep=(O.DISTURBANCE,))
             self._servo.reset_application()
-        self._table.restore_defaults(0x1000, 0x1FFF)
+        self._table.restore_defaults(COMMUNICATION_AREA.start, COMMUNICATION_AREA.stop - 1)
         if self._started:
             self._unsubscribe_sync()
             self._subscribe_sync()
             self._pdo.reset()
+            self._consumer_changed(self._table.value(O.HEARTBEAT_CONSUMER))  # 1016h: default

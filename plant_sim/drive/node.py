@@ -80,7 +80,11 @@ class SimulatedHeartbeat:
 
 
 class WallClockHeartbeat:
-    """Heartbeat on the wall clock (real time): python-can's periodic send task."""
+    """Heartbeat on the wall clock (real time): python-can's thread-based periodic send task,
+    through the bus's own ``send``. Not the bus's ``send_periodic``: on SocketCAN that is the
+    kernel's broadcast manager, a socket of its own, whose frames the drive's raw socket
+    receives as another node's (docs/virtual_bus.md, "Own frames"): the drive counted its own
+    heartbeat as an unknown COB-ID. A socket is never handed its own frames back."""
 
     def __init__(self, bus: Callable[[], can.BusABC], node_id: int) -> None:
         self._bus = bus
@@ -95,7 +99,13 @@ class WallClockHeartbeat:
         self._message = can.Message(
             arbitration_id=self._can_id, data=bytes([state]), is_extended_id=False
         )
-        self._task = self._bus().send_periodic(self._message, period_ms / 1000.0)
+        self._task = can.broadcastmanager.ThreadBasedCyclicSendTask(
+            self._bus(),
+            threading.Lock(),
+            self._message,
+            period_ms / 1000.0,
+            on_error=lambda _exc: True,  # a bus that refuses one frame gets the next
+        )
 
     def set_state(self, state: NmtState) -> None:
         if self._task is not None and self._message is not None:

@@ -32,18 +32,23 @@ from canopen import objectdictionary as cod
 from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo import SdoAbortedError
 
-from virtual_bus.contract import INT16_MAX as INT16_MAX
-from virtual_bus.contract import INT16_MIN as INT16_MIN
-from virtual_bus.contract import INT32_MAX as INT32_MAX
-from virtual_bus.contract import INT32_MIN as INT32_MIN
 from virtual_bus.contract import (
+    ABORT_CONNECTION_INDEX,
+    HEARTBEAT_CONSUMER_INDEX,
+    HEARTBEAT_PRODUCER_INDEX,
     LOAD_INCREMENTS_PER_M,
     LOAD_INCREMENTS_PER_RAD,
     MNM_PER_NM,
     MOTOR_INCREMENTS_PER_REV,
     PERMILLE,
+    Cia301,
+    Cia402,
     SdoAbort,
 )
+from virtual_bus.contract import INT16_MAX as INT16_MAX
+from virtual_bus.contract import INT16_MIN as INT16_MIN
+from virtual_bus.contract import INT32_MAX as INT32_MAX
+from virtual_bus.contract import INT32_MIN as INT32_MIN
 from virtual_bus.contract import MODE_CSV as MODE_CSV
 from virtual_bus.formats.axis import AxisKind
 from virtual_bus.shipped import DRIVE_EDS
@@ -53,11 +58,18 @@ from .errors import DriveEdsError, DriveSdoAbort
 ObjectKey = tuple[int, int]
 
 # --- CiA 301 communication area -------------------------------------------------------------
-DEVICE_TYPE: ObjectKey = (0x1000, 0)
-ERROR_REGISTER: ObjectKey = (0x1001, 0)
-COB_ID_SYNC: ObjectKey = (0x1005, 0)
-HEARTBEAT_TIME: ObjectKey = (0x1017, 0)
-RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
+DEVICE_TYPE: ObjectKey = (Cia301.DEVICE_TYPE, 0)
+ERROR_REGISTER: ObjectKey = (Cia301.ERROR_REGISTER, 0)
+COB_ID_SYNC: ObjectKey = (Cia301.COB_ID_SYNC, 0)
+#: the one heartbeat consumer entry (1016h:01): the master the drive watches
+HEARTBEAT_CONSUMER: ObjectKey = (HEARTBEAT_CONSUMER_INDEX, 1)
+HEARTBEAT_TIME: ObjectKey = (HEARTBEAT_PRODUCER_INDEX, 0)
+RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = (
+    Cia301.RPDO_COMMUNICATION,
+    Cia301.RPDO_MAPPING,
+    Cia301.TPDO_COMMUNICATION,
+    Cia301.TPDO_MAPPING,
+)
 PDO_CHANNELS = 4
 PDO_MAP_ENTRIES = 8
 # --- manufacturer area ----------------------------------------------------------------------
@@ -69,26 +81,26 @@ LOAD_MINUS_MOTOR: ObjectKey = (0x2104, 0)
 #: 2105h:01..07 refused frames by kind (virtual_bus.frame_guard.FrameFault values)
 FRAME_COUNTERS = 0x2105
 # --- CiA 402 --------------------------------------------------------------------------------
-ABORT_CONNECTION_OPTION: ObjectKey = (0x6007, 0)
-ERROR_CODE: ObjectKey = (0x603F, 0)
-CONTROLWORD: ObjectKey = (0x6040, 0)
-STATUSWORD: ObjectKey = (0x6041, 0)
-QUICK_STOP_OPTION: ObjectKey = (0x605A, 0)
-FAULT_REACTION_OPTION: ObjectKey = (0x605E, 0)
-MODES_OF_OPERATION: ObjectKey = (0x6060, 0)
-MODES_OF_OPERATION_DISPLAY: ObjectKey = (0x6061, 0)
-POSITION_ACTUAL: ObjectKey = (0x6064, 0)
-VELOCITY_ACTUAL: ObjectKey = (0x606C, 0)
-MAX_TORQUE: ObjectKey = (0x6072, 0)
-RATED_TORQUE: ObjectKey = (0x6076, 0)
-TORQUE_ACTUAL: ObjectKey = (0x6077, 0)
-PROFILE_DECELERATION: ObjectKey = (0x6084, 0)
-QUICK_STOP_DECELERATION: ObjectKey = (0x6085, 0)
-INTERPOLATION_PERIOD_VALUE: ObjectKey = (0x60C2, 1)
-INTERPOLATION_PERIOD_INDEX: ObjectKey = (0x60C2, 2)
-LOAD_POSITION_ACTUAL: ObjectKey = (0x60E4, 1)
-TARGET_VELOCITY: ObjectKey = (0x60FF, 0)
-SUPPORTED_DRIVE_MODES: ObjectKey = (0x6502, 0)
+ABORT_CONNECTION_OPTION: ObjectKey = (ABORT_CONNECTION_INDEX, 0)
+ERROR_CODE: ObjectKey = (Cia402.ERROR_CODE, 0)
+CONTROLWORD: ObjectKey = (Cia402.CONTROLWORD, 0)
+STATUSWORD: ObjectKey = (Cia402.STATUSWORD, 0)
+QUICK_STOP_OPTION: ObjectKey = (Cia402.QUICK_STOP_OPTION, 0)
+FAULT_REACTION_OPTION: ObjectKey = (Cia402.FAULT_REACTION_OPTION, 0)
+MODES_OF_OPERATION: ObjectKey = (Cia402.MODES_OF_OPERATION, 0)
+MODES_OF_OPERATION_DISPLAY: ObjectKey = (Cia402.MODES_OF_OPERATION_DISPLAY, 0)
+POSITION_ACTUAL: ObjectKey = (Cia402.POSITION_ACTUAL_VALUE, 0)
+VELOCITY_ACTUAL: ObjectKey = (Cia402.VELOCITY_ACTUAL_VALUE, 0)
+MAX_TORQUE: ObjectKey = (Cia402.MAX_TORQUE, 0)
+RATED_TORQUE: ObjectKey = (Cia402.MOTOR_RATED_TORQUE, 0)
+TORQUE_ACTUAL: ObjectKey = (Cia402.TORQUE_ACTUAL_VALUE, 0)
+PROFILE_DECELERATION: ObjectKey = (Cia402.PROFILE_DECELERATION, 0)
+QUICK_STOP_DECELERATION: ObjectKey = (Cia402.QUICK_STOP_DECELERATION, 0)
+INTERPOLATION_PERIOD_VALUE: ObjectKey = (Cia402.INTERPOLATION_TIME_PERIOD, 1)
+INTERPOLATION_PERIOD_INDEX: ObjectKey = (Cia402.INTERPOLATION_TIME_PERIOD, 2)
+LOAD_POSITION_ACTUAL: ObjectKey = (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 1)
+TARGET_VELOCITY: ObjectKey = (Cia402.TARGET_VELOCITY, 0)
+SUPPORTED_DRIVE_MODES: ObjectKey = (Cia402.SUPPORTED_DRIVE_MODES, 0)
 
 #: Motor encoder increments per motor revolution (6064h, 606Ch, 60FFh); MODE_CSV (6060h = 9)
 #: is the only mode of this drive.
@@ -187,13 +199,15 @@ def _known_objects() -> dict[ObjectKey, ObjectSpec]:
         DEVICE_TYPE: (u32, ro),
         ERROR_REGISTER: (u8, ro),
         COB_ID_SYNC: (u32, rw),
-        (0x1008, 0): (cod.VISIBLE_STRING, const),
+        (Cia301.MANUFACTURER_DEVICE_NAME, 0): (cod.VISIBLE_STRING, const),
+        (HEARTBEAT_CONSUMER_INDEX, 0): (u8, const),
+        HEARTBEAT_CONSUMER: (u32, rw),
         HEARTBEAT_TIME: (u16, rw),
-        (0x1018, 0): (u8, const),
-        **{(0x1018, s): (u32, ro) for s in range(1, 5)},
-        (0x1200, 0): (u8, const),
-        (0x1200, 1): (u32, const),
-        (0x1200, 2): (u32, const),
+        (Cia301.IDENTITY, 0): (u8, const),
+        **{(Cia301.IDENTITY, s): (u32, ro) for s in range(1, 5)},
+        (Cia301.SDO_SERVER_PARAMETER, 0): (u8, const),
+        (Cia301.SDO_SERVER_PARAMETER, 1): (u32, const),
+        (Cia301.SDO_SERVER_PARAMETER, 2): (u32, const),
         DISTURBANCE: (i32, rw),
         ENCODER_TOLERANCE: (u32, rw),
         SETPOINT_TIMEOUT: (u8, rw),
@@ -216,10 +230,10 @@ def _known_objects() -> dict[ObjectKey, ObjectSpec]:
         TORQUE_ACTUAL: (i16, ro),
         PROFILE_DECELERATION: (u32, rw),
         QUICK_STOP_DECELERATION: (u32, rw),
-        (0x60C2, 0): (u8, const),
+        (Cia402.INTERPOLATION_TIME_PERIOD, 0): (u8, const),
         INTERPOLATION_PERIOD_VALUE: (u8, ro),
         INTERPOLATION_PERIOD_INDEX: (i8, ro),
-        (0x60E4, 0): (u8, const),
+        (Cia402.ADDITIONAL_POSITION_ACTUAL_VALUE, 0): (u8, const),
         LOAD_POSITION_ACTUAL: (i32, ro),
         TARGET_VELOCITY: (i32, rw),
         SUPPORTED_DRIVE_MODES: (u32, ro),

@@ -17,7 +17,16 @@ harness that runs the drive in a subprocess or thread of its own):
    is due, and after the SYNC until the master's set point is in (:class:`SyncWatch`): a
    blocked thread wakes 50-60 µs after its frame arrived on a small VM, a polling one at
    once. With ``freeze_gc`` the collector runs only right after a SYNC has been answered;
-4. on ``stop`` (SIGINT/SIGTERM in the command) the drive leaves the bus (heartbeat stopped);
+4. with the real-time clock (``TimeMode.REAL_TIME``) the drive keeps its own clock, as a
+   real drive's control loop runs on its own oscillator (:class:`OwnClock`): from the first
+   SYNC on, a position cycle whose SYNC has not come half a cycle after it was due is run by
+   the drive itself on the last set point (:meth:`SimulatedDrive.free_cycle`), and so is
+   every cycle after it until SYNC comes back -- a master that dies leaves a motor that goes
+   on, as a real one does, until a supervision stops it: the heartbeat consumer (1016h,
+   checked on the wall clock here, :meth:`SimulatedDrive.watch_master`) acts through 6007h.
+   At rest with the power stage off nothing changes (no measuring system moved in the last
+   cycle), so no cycles run then;
+5. on ``stop`` (SIGINT/SIGTERM in the command) the drive leaves the bus (heartbeat stopped);
    the bus stays the caller's to shut down.
 
 >>> stop = threading.Event()
@@ -36,6 +45,7 @@ from dataclasses import dataclass, field
 import can
 
 from virtual_bus.formats.axis import AxisConfig
+from virtual_bus.frame_guard import FrameFault
 from virtual_bus.framing import NOTHING
 from virtual_bus.realtime import GcBetweenCycles, RealTimeOptions, apply_realtime
 
@@ -178,6 +188,67 @@ class SyncWatch:
         return longest_s
 
 
+#: A SYNC that has not come this share of a cycle after it was due is replaced by a cycle
+#: of the drive's own clock (a SYNC slot the master skips, one it sends late, a dead master).
+OWN_CLOCK_GRACE_FRACTION = 0.5
+#: Own cycles that are due wait until the socket is empty, at most for this many frames (a
+#: flood that never lets it empty must not stop the drive's clock).
+OWN_CLOCK_DRAIN_FRAMES = 256
+#: At most this many own cycles are run at once to catch up with the wall clock (a drive
+#: process held off its CPU for longer loses the rest: its physics falls behind, never
+#: runs in a burst longer than a second of cycles).
+OWN_CLOCK_CATCH_UP_S = 1.0
+
+
+class OwnClock:
+    """The drive's own clock in real time (module docstring, point 4): the instant of the
+    next position cycle it runs itself unless a SYNC comes first. Armed by the first SYNC
+    (:meth:`synced`); :meth:`due` says how many cycles are due at ``now`` and moves on. The
+    clock is the caller's (s)."""
+
+    def __init__(self, cycle_s: float, grace_s: float) -> None:
+        self.cycle_s = cycle_s
+        self.grace_s = grace_s
+        self.due_s: float | None = None
+        #: the axis moved in the last cycle (the own clock runs while it does, or while the
+        #: power stage holds it)
+        self.moving = True
+        #: cycles of its own are running (no SYNC came for more than a cycle and a half, and
+        #: the axis moves or the power stage holds it)
+        self.running = False
+        self._most = max(1, round(OWN_CLOCK_CATCH_UP_S / cycle_s))
+
+    def synced(self, t: float) -> None:
+        """A SYNC ran a cycle at ``t``: the next one is its successor's, due a cycle on."""
+        self.due_s = t + self.cycle_s + self.grace_s
+        self.moving = True
+        self.running = False
+
+    def wait_s(self, now: float, longest_s: float) -> float:
+        """How long the loop may block before a cycle is due (at most ``longest_s``)."""
+        due = self.due_s
+        return longest_s if due is None else max(0.0, min(longest_s, due - now))
+
+    def due(self, now: float) -> tuple[float, int]:
+        """The instant of the first cycle due at ``now`` and how many are due (0 before the
+        first SYNC); the next is a cycle after the last of them."""
+        due = self.due_s
+        if due is None or now < due:
+            return now, 0
+        n = int((now - due) // self.cycle_s) + 1
+        self.due_s = due + n * self.cycle_s
+        if n > self._most:  # held off its CPU for long: the oldest cycles are lost
+            due += (n - self._most) * self.cycle_s
+            n = self._most
+        return due, n
+
+    def idle(self, now: float, look_again_s: float) -> None:
+        """Nothing to run now (at rest, power stage off): look again in ``look_again_s``."""
+        if self.due_s is not None:
+            self.due_s = now + look_again_s
+        self.running = False
+
+
 @dataclass
 class LoopCounts:
     """What the serving loop counted: frames it could not receive (no CAN frame)."""
@@ -188,20 +259,26 @@ class LoopCounts:
 @dataclass(frozen=True)
 class ServeResult:
     """How the drive ended: SYNCs run, CiA 402 state, NMT state, active error codes,
-    datagrams the loop could not receive as a CAN frame (ignored)."""
+    datagrams the loop could not receive as a CAN frame (ignored), cycles of its own clock
+    (real time, while no SYNC came), frames its frame guard refused by kind (2105h)."""
 
     sync_count: int
     state: State402
     nmt_state: NmtState
     active_errors: tuple[int, ...]
     receive_errors: int = 0
+    free_cycles: int = 0
+    refused: tuple[tuple[FrameFault, int], ...] = ()
 
     def summary(self) -> str:
         errors = ", ".join(f"0x{code:04X}" for code in self.active_errors) or "none"
+        refused = ", ".join(f"{f.name.lower()} {n}" for f, n in self.refused if n) or "none"
         return (
             f"{self.sync_count} SYNCs served; CiA 402 {self.state.value}, NMT "
             f"{self.nmt_state.name.lower().replace('_', '-')}, active errors {errors}"
             + (f"; {self.receive_errors} datagrams ignored" if self.receive_errors else "")
+            + (f"; {self.free_cycles} cycles on its own clock" if self.free_cycles else "")
+            + f"; refused frames (2105h) {refused}"
         )
 
 
@@ -272,6 +349,8 @@ def _serve(
         drive.nmt_state,
         drive.active_errors,
         counts.receive_errors,
+        drive.free_cycles,
+        tuple((fault, drive.guard.count(fault)) for fault in FrameFault),
     )
 
 
@@ -298,14 +377,36 @@ def _loop(
     watch = SyncWatch(cycle_s, config.poll_lead_s, SYNC_HOLD_FRACTION * cycle_s)
     busy_poll = config.realtime.busy_poll
     next_check = wall() + interval
+    # real time: the drive's own clock and its watch of the master (module docstring)
+    real_time = config.drive.time_mode is TimeMode.REAL_TIME
+    own = OwnClock(cycle_s, OWN_CLOCK_GRACE_FRACTION * cycle_s) if real_time else None
+    drive.wall = wall
+    master_at = 0.0  # when to look at the master's heartbeat next
+    overdue_frames = 0  # frames read while own cycles were overdue
     while not stop.is_set():
         now = wall()
         if now >= next_check:
             drive.check()
             next_check = now + interval
+        if own is not None:
+            longest = watch.wait_s(now, interval) if busy_poll else interval
+            if not own.running:  # (while it runs, each own cycle checks the master)
+                if now >= master_at:
+                    deadline = drive.watch_master(now)
+                    master_at = now + interval
+                    if deadline is not None:
+                        master_at = min(deadline, master_at)
+                if master_at < now + longest:
+                    longest = max(0.0, master_at - now)
+            timeout = own.wait_s(now, longest)
+        else:
+            timeout = watch.wait_s(now, interval) if busy_poll else interval
         try:
-            cob_id = port.receive(watch.wait_s(now, interval) if busy_poll else interval)
+            cob_id = port.receive(timeout)
             if cob_id == NOTHING:
+                if own is not None:
+                    _own_cycles(drive, own, wall())
+                    overdue_frames = 0
                 continue
             received, received_epoch = wall(), epoch()
             synced = take(cob_id, port, handle)
@@ -313,6 +414,17 @@ def _loop(
             counts.receive_errors += 1
             logger.warning("drive %d: receive failed, frame ignored: %s", drive.node_id, exc)
             continue
+        due = None if own is None or synced else own.due_s
+        if due is not None and received - due >= cycle_s:
+            # own cycles overdue: they run once the socket is empty (every frame that came
+            # before their instants read: the master's heartbeat among them); a flood that
+            # never lets it empty must not hold the clock: after so many frames they run
+            overdue_frames += 1
+            if overdue_frames >= OWN_CLOCK_DRAIN_FRAMES:
+                _own_cycles(drive, own, received)  # type: ignore[arg-type]
+                overdue_frames = 0
+        else:
+            overdue_frames = 0
         if synced:  # a SYNC: answered, the physics stepped
             # the frame's own timestamp (epoch s: the kernel's receive time where the port
             # has it, python-can's messages) says how long it waited for this thread; a
@@ -320,7 +432,30 @@ def _loop(
             # shift the next window (a raw socket's port: the time it was read, age <= 0)
             age = received_epoch - port.timestamp
             watch.synced(received - age if 0.0 <= age < cycle_s else received)
+            if own is not None:
+                own.synced(received)
             if gc_control is not None and gc_control.due():
                 gc_control.collect()
         else:
             watch.received()
+
+
+#: At rest with the power stage off the own clock looks this often whether it has to run.
+OWN_CLOCK_IDLE_S = 0.05
+
+
+def _own_cycles(drive: SimulatedDrive, own: OwnClock, now: float) -> None:
+    """Run the cycles of the drive's own clock due at ``now`` (none at rest, power off)."""
+    first, n = own.due(now)
+    if not n:
+        return
+    if not (own.moving or drive.holding):
+        own.idle(now, OWN_CLOCK_IDLE_S)
+        return
+    own.running = True
+    cycle_s = own.cycle_s
+    for i in range(n):
+        # the master's heartbeat checked at the cycle's own instant: a drive held off its
+        # CPU reacts in the cycle its clock says, not when it gets the CPU back
+        drive.watch_master(first + i * cycle_s)
+        own.moving = drive.free_cycle()

@@ -25,7 +25,11 @@ computes 60FFh; the drive does nothing with it. The sensor time offset is physic
 measuring systems and is applied by the plant (its positions are the readings).
 
 Its supervision runs once per SYNC: the set point watchdog (2102h, reaction 6007h), the
-motor encoder vs load scale monitor (2101h, paper section II.B) and the end of the ramps.
+motor encoder vs load scale monitor (2101h, paper section II.B) and the end of the ramps; on
+a position cycle of the drive's own clock (real time, no SYNC) the same without the set point
+watchdog, which counts SYNCs (:meth:`ServoAxis.supervise_without_sync`). A lost master (its
+heartbeat, an NMT command) acts through 6007h as the set point timeout does
+(:meth:`ServoAxis.abort_connection`).
 """
 
 from __future__ import annotations
@@ -57,6 +61,8 @@ from .cia402 import (
 from .config import DriveConfig
 from .errors import DriveConfigError, DriveSdoAbort
 from .protection import (
+    EMCY_COMMUNICATION,
+    EMCY_HEARTBEAT,
     EMCY_PDO_LENGTH,
     EMCY_RPDO_TIMEOUT,
     EMCY_SENSOR,
@@ -332,6 +338,50 @@ class ServoAxis:
             elif self.sm.state is S.FAULT_REACTION_ACTIVE:
                 self._take(self.sm.event(Event.FAULT_REACTION_COMPLETED))
 
+    def supervise_without_sync(self) -> None:
+        """A position cycle of the drive's own clock, between SYNCs that did not come (real
+        time): the encoder monitor and the end of the ramps, as :meth:`supervise` -- not the
+        set point watchdog, which counts SYNCs without a set point."""
+        if self.sm.state not in _FAULTED and not self._encoder_ok():
+            self._fault(EMCY_SENSOR, emcy_data_int32(self._table.read(O.LOAD_MINUS_MOTOR)))
+        if self._ramp_done and abs(self._measured()[2]) <= self.config.standstill_rad_s:
+            if self.sm.state is S.QUICK_STOP_ACTIVE and self._table.value(O.QUICK_STOP_OPTION) in (
+                1,
+                2,
+            ):
+                self._take(self.sm.event(Event.QUICK_STOP_COMPLETED))
+            elif self.sm.state is S.FAULT_REACTION_ACTIVE:
+                self._take(self.sm.event(Event.FAULT_REACTION_COMPLETED))
+
+    @property
+    def holding(self) -> bool:
+        """The power stage holds the axis (Operation enabled, a quick stop or fault reaction
+        ramp) or a disturbance acts on it: its physics must go on."""
+        return self.sm.state in _DRIVING or self._table.stored[O.DISTURBANCE] != 0
+
+    def abort_connection(self, code: int, data: bytes) -> int:
+        """The connection to the master is lost (CiA 402 6007h: heartbeat, NMT Stopped or
+        Pre-operational entered, reset communication): error ``code`` (EMCY with ``data``)
+        and, in Operation enabled, the 6007h reaction; returns the option code in force."""
+        option = self._table.value(O.ABORT_CONNECTION_OPTION)
+        self._errors.set(code, data)
+        if self.sm.state is not _ENABLED:
+            return option
+        logger.warning("connection to the master lost (EMCY 0x%04X): 6007h = %d", code, option)
+        if option == 1:
+            self._fault(code)
+        elif option == 2:
+            self._take(*self.sm.command(Command.DISABLE_VOLTAGE))
+        elif option == 3:
+            self._take(*self.sm.command(Command.QUICK_STOP))
+        return option
+
+    def connection_restored(self, code: int) -> None:
+        """The cause of a lost connection is gone (the master's heartbeat is back, NMT
+        Operational again): its error clears (error reset EMCY)."""
+        if code in self._errors:
+            self._errors.clear(code)
+
     def advance(self) -> None:
         """Run the plant one position cycle as the state says (see the module docstring),
         then read its measuring systems for the next SYNC (:meth:`hold_measurements`)."""
@@ -426,6 +476,8 @@ class ServoAxis:
             if code == EMCY_SENSOR and not self._encoder_ok():
                 return False
             if code == EMCY_RPDO_TIMEOUT and EMCY_RPDO_TIMEOUT in self._errors:
+                return False
+            if code in (EMCY_HEARTBEAT, EMCY_COMMUNICATION) and code in self._errors:
                 return False
         return True
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from regulator.analysis import condition_monitoring, vibration_band_hz
+from virtual_bus.atomic import replacing, write_atomic
 from virtual_bus.formats.axis import AxisConfig, dump_axis
 from virtual_bus.formats.trace import Trace
 
@@ -145,7 +146,8 @@ def plot_section_x(
     if note:
         fig.text(0.5, 0.005, note, ha="center", va="bottom", fontsize=7.5, color="C3", wrap=True)
     fig.tight_layout(rect=(0, 0.035 if note else 0, 1, 1))
-    fig.savefig(path, dpi=110)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix[1:])
     plt.close(fig)
 
 
@@ -214,7 +216,7 @@ def write_paper_outputs(
     summary.update(extra)
     files.append("summary.json")
     summary["files"] = sorted(set(files))
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_atomic(out_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
     return summary
 
 
@@ -266,8 +268,9 @@ def limit_cycle_variant(
         return None
     variant = axis.with_values({"friction.viscous": LIMIT_CYCLE_VISCOUS})
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "axis_limit_cycle.toml").write_text(  # listed in extra["files_written"]
-        dump_axis(variant, f"{axis_name} with friction.viscous = {LIMIT_CYCLE_VISCOUS}")
+    write_atomic(  # listed in extra["files_written"]
+        out_dir / "axis_limit_cycle.toml",
+        dump_axis(variant, f"{axis_name} with friction.viscous = {LIMIT_CYCLE_VISCOUS}"),
     )
     extra: dict[str, object] = {
         "as_given": {name: asdict(s) for name, s in published.items()},

@@ -30,6 +30,16 @@ Every position cycle the P position controller (eq. 7) and the paper's vibration
 speed regulator (Fig. 5, eq. 15, from :mod:`regulator.core`, compiled here) compute the speed
 set point.
 
+Where a machine's signals arrive late (axis file, docs/axis-file.md): the drive may apply the
+speed set point (and the torque feed-forward with it) d(t) = clip(d0 + rate·t, 0, 0.1 s) after
+it gets it (``control.setpoint_delay``, ``setpoint_delay_rate``: a history of the set point
+as it arrives, one sample per speed cycle, read at d with linear interpolation between
+samples, so a simulation is continuous in d); the readings the position loop and the
+recording get may be late (``control.measurement_delay``, plus ``sensor_time_offset`` for the
+one reading it concerns: a history of x, θ and the speed actual value per speed cycle, read
+the same way) while the drive's own speed loop reads the encoder at once; the load scale may
+read x + A·sin(2πx/P + φ) (``control.scale_error_*``: a measurement error, not a force).
+
 All arrays are float64; the layouts are the ``P_*``, ``S_*`` and ``O_*`` index constants.
 """
 
@@ -120,18 +130,33 @@ _Y_BETA, _Y_LAMBDA = _cycle.Y_BETA, _cycle.Y_LAMBDA
     P_LAG_MEAN,  # mean of the lag's step response over a substep: T/dt·(1 − alpha) (1: ideal)
     P_KVFF,  # velocity feed-forward gain on ω_s (0: none)
     P_JFF,  # kg m^2, acceleration feed-forward inertia (0: none)
-    P_OFS_SIGN,  # +1: load position read late (offset > 0), -1: motor read late, 0: no offset
-    P_OFS_N,  # whole speed cycles of the sensor time offset
-    P_OFS_FRAC,  # fraction of a speed cycle on top of P_OFS_N
-    P_HIST_LEN,  # ring-buffer length in use (>= P_OFS_N + 2)
+    P_HIST_ON,  # 1.0: a reading is taken from the sensor history (a reading delay > 0)
+    P_LOAD_DLY_N,  # whole speed cycles the load reading is late (sensor offset + delay)
+    P_LOAD_DLY_FRAC,  # fraction of a speed cycle on top of P_LOAD_DLY_N
+    P_HIST_LEN,  # ring-buffer length in use (>= the larger reading delay in cycles + 2)
     P_V_CREEP,  # load units/s, creep speed of a regularised friction law (0: set-valued)
     P_SPD_ALPHA,  # exp(-T_sc / speed_filter): speed-measurement filter pole (0: no filter)
+    P_LOAD_DLY_ON,  # 1.0: the load reading is late (P_LOAD_DLY_N, P_LOAD_DLY_FRAC)
+    P_MOT_DLY_ON,  # 1.0: the motor readings (encoder, speed actual value) are late
+    P_MOT_DLY_N,  # whole speed cycles the motor readings are late
+    P_MOT_DLY_FRAC,  # fraction of a speed cycle on top of P_MOT_DLY_N
+    P_SP_DLY_ON,  # 1.0: the drive applies the speed set point late (control.setpoint_delay)
+    P_SP_DLY0,  # s, set-point dead time at t = 0
+    P_SP_DLY_RATE,  # s/s, its growth per second of the run (control.setpoint_delay_rate)
+    P_SPH_LEN,  # set-point history ring length in use (>= largest delay in cycles + 2)
+    P_SCALE_AMP,  # load units, periodic error of the load scale (0: none)
+    P_SCALE_PERIOD,  # load units
+    P_SCALE_PHASE,  # rad
     N_PARAMS,
-) = range(47)
+) = range(58)
+
+#: Largest set-point dead time, s (control.setpoint_delay and its growth are clipped to it).
+MAX_SETPOINT_DELAY_S = 0.1
 
 # --- state vector --------------------------------------------------------------------------
 MAX_DELAY = 2048  # speed cycles of dead time the ring buffer holds
-MAX_HIST = 2048  # speed-cycle samples of sensor history (sensor_time_offset)
+MAX_HIST = 2048  # speed-cycle samples of sensor history (sensor_time_offset, measurement_delay)
+MAX_SP_HIST = 2048  # speed-cycle samples of set-point history (setpoint_delay)
 (
     S_TH,  # rad, motor angle
     S_OM,  # rad/s, motor speed
@@ -150,12 +175,15 @@ MAX_HIST = 2048  # speed-cycle samples of sensor history (sensor_time_offset)
     S_TAU_FF,  # N m, torque feed-forward held over the position cycle
     S_HIST_IDX,  # next slot of the sensor history ring buffers
     S_FF_PENDING,  # N m, torque feed-forward waiting for the next position cycle
+    S_SPH_IDX,  # next slot of the set-point history ring buffers
     S_DLY0,  # first slot of the dead-time ring buffer
-) = range(18)
+) = range(19)
 S_HX0 = S_DLY0 + MAX_DELAY  # load position history, one sample per speed cycle
 S_HTH0 = S_HX0 + MAX_HIST  # motor angle history
 S_HOM0 = S_HTH0 + MAX_HIST  # measured motor speed history
-N_STATE = S_HOM0 + MAX_HIST
+S_SPH0 = S_HOM0 + MAX_HIST  # speed set point as it arrives at the drive, per speed cycle
+S_FFH0 = S_SPH0 + MAX_SP_HIST  # torque feed-forward as it arrives, per speed cycle
+N_STATE = S_FFH0 + MAX_SP_HIST
 
 # --- trace rows of the closed loop (one per position cycle) ------------------------------------
 (
@@ -342,8 +370,8 @@ def _torque_phase(p: np.ndarray, st: np.ndarray, cmd: float, f_dist: float) -> N
 
 @_inline
 def _push_history(p: np.ndarray, st: np.ndarray) -> None:
-    """Store this speed cycle's sensor values for the sensor time offset (no-op without)."""
-    if p[P_OFS_SIGN] == 0.0:
+    """Store this speed cycle's sensor values for a late reading (no-op without one)."""
+    if p[P_HIST_ON] == 0.0:
         return
     i = int(st[S_HIST_IDX])
     st[S_HX0 + i] = st[S_X]
@@ -353,40 +381,79 @@ def _push_history(p: np.ndarray, st: np.ndarray) -> None:
 
 
 @_inline
-def _history(p: np.ndarray, st: np.ndarray, base: int) -> float:
-    """Linear interpolation of a history buffer at |offset| before the latest sample."""
+def _history(p: np.ndarray, st: np.ndarray, base: int, whole: float, frac: float) -> float:
+    """Linear interpolation of a history buffer at (whole + frac) speed cycles before the
+    latest sample."""
     n = int(p[P_HIST_LEN])
     latest = int(st[S_HIST_IDX]) - 1
-    m = int(p[P_OFS_N])
+    m = int(whole)
     a = st[base + (latest - m) % n]
     b = st[base + (latest - m - 1) % n]
-    return a + (b - a) * p[P_OFS_FRAC]
+    return a + (b - a) * frac
 
 
 @_inline
 def load_measured(p: np.ndarray, st: np.ndarray) -> float:
-    """Load measuring system's reading now: x(t − offset) for a positive sensor time offset
-    (linear interpolation between speed-cycle samples), else x(t)."""
-    if p[P_OFS_SIGN] > 0.0:
-        return _history(p, st, S_HX0)
-    return st[S_X]
+    """Load measuring system's reading now: x(t − d) when it is read late by d (a positive
+    sensor time offset plus the measurement delay; linear interpolation between speed-cycle
+    samples), else x(t); plus the scale's periodic error A·sin(2πx/P + φ) at the position
+    read (control.scale_error_*)."""
+    if p[P_LOAD_DLY_ON] != 0.0:
+        x = _history(p, st, S_HX0, p[P_LOAD_DLY_N], p[P_LOAD_DLY_FRAC])
+    else:
+        x = st[S_X]
+    if p[P_SCALE_AMP] != 0.0:
+        x += p[P_SCALE_AMP] * math.sin(2.0 * math.pi * x / p[P_SCALE_PERIOD] + p[P_SCALE_PHASE])
+    return x
 
 
 @_inline
 def motor_measured(p: np.ndarray, st: np.ndarray) -> float:
-    """Motor encoder reading for the position loop and the recording: θ(t − |offset|) for a
-    negative sensor time offset (the motor is the older one), else θ(t)."""
-    if p[P_OFS_SIGN] < 0.0:
-        return _history(p, st, S_HTH0)
+    """Motor encoder reading for the position loop and the recording: θ(t − d) when it is
+    read late by d (a negative sensor time offset's |offset| plus the measurement delay),
+    else θ(t)."""
+    if p[P_MOT_DLY_ON] != 0.0:
+        return _history(p, st, S_HTH0, p[P_MOT_DLY_N], p[P_MOT_DLY_FRAC])
     return st[S_TH]
 
 
 @_inline
 def motor_speed_measured(p: np.ndarray, st: np.ndarray) -> float:
     """The drive's speed actual value as recorded, shifted like :func:`motor_measured`."""
-    if p[P_OFS_SIGN] < 0.0:
-        return _history(p, st, S_HOM0)
+    if p[P_MOT_DLY_ON] != 0.0:
+        return _history(p, st, S_HOM0, p[P_MOT_DLY_N], p[P_MOT_DLY_FRAC])
     return st[S_OM_MEAS]
+
+
+@_inline
+def _delayed_setpoint(
+    p: np.ndarray, st: np.ndarray, omega_set: float, tau_ff: float
+) -> tuple[float, float]:
+    """The set point (and torque feed-forward) the drive applies in this speed cycle when
+    it applies them late (``control.setpoint_delay``): the values as they arrive are stored
+    once per speed cycle; the drive uses the value of time t − d(t), d(t) = clip(d0 +
+    rate·t, 0, MAX_SETPOINT_DELAY_S), t this speed cycle's start in the run (``S_T``),
+    linearly interpolated between the two neighbouring speed-cycle samples (continuous in
+    d). Before the run the set point was 0 (at rest)."""
+    n = int(p[P_SPH_LEN])
+    i = int(st[S_SPH_IDX])
+    st[S_SPH0 + i] = omega_set
+    st[S_FFH0 + i] = tau_ff
+    st[S_SPH_IDX] = (i + 1) % n
+    d = p[P_SP_DLY0] + p[P_SP_DLY_RATE] * st[S_T]
+    d = min(MAX_SETPOINT_DELAY_S, max(0.0, d))
+    cycles = d / p[P_TSC]
+    m = math.floor(cycles + 1e-9)
+    if m > n - 2:
+        m = n - 2
+    f = cycles - m
+    # a delay of whole cycles within rounding (0.5 ms / 125 µs) reads the sample itself
+    f = 0.0 if f < 1e-9 else min(1.0, f)
+    a = st[S_SPH0 + (i - m) % n]
+    b = st[S_SPH0 + (i - m - 1) % n]
+    fa = st[S_FFH0 + (i - m) % n]
+    fb = st[S_FFH0 + (i - m - 1) % n]
+    return a + (b - a) * f, fa + (fb - fa) * f
 
 
 @_inline
@@ -394,6 +461,8 @@ def _speed_cycle(
     p: np.ndarray, st: np.ndarray, omega_set: float, f_dist: float, tau_ff: float
 ) -> None:
     tsc = p[P_TSC]
+    if p[P_SP_DLY_ON] != 0.0:
+        omega_set, tau_ff = _delayed_setpoint(p, st, omega_set, tau_ff)
     _measure_speed(p, st)
     err = omega_set - st[S_OM_MEAS]
     kp_part = p[P_KSP] * err + tau_ff
@@ -436,7 +505,7 @@ def _advance(
     f_dist = p[P_KR] * disturbance_nm
     # loop invariants in locals: p and st may alias for the compiler, so a p[...] in the loop
     # would be reloaded after every store to st
-    history = p[P_OFS_SIGN] != 0.0
+    history = p[P_HIST_ON] != 0.0
     for _ in range(int(p[P_NSC])):
         _speed_cycle(p, st, omega_set, f_dist, torque_ff_nm)
         if history:
@@ -478,6 +547,8 @@ def advance_torque(p: np.ndarray, st: np.ndarray, torque_nm: float, disturbance_
     st[S_INT] = 0.0
     st[S_TAU_FF] = 0.0
     for _ in range(int(p[P_NSC])):
+        if p[P_SP_DLY_ON] != 0.0:
+            _delayed_setpoint(p, st, 0.0, 0.0)  # a disabled drive's set point is 0
         _measure_speed(p, st)
         _torque_phase(p, st, torque_nm, f_dist)
         _push_history(p, st)

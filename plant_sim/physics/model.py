@@ -152,26 +152,73 @@ def build_params(
         p[K.P_REG_BT] = regulator.beta_t_rad_s
     p[K.P_KVFF] = c.velocity_feedforward or 0.0
     p[K.P_JFF] = c.acceleration_feedforward or 0.0
-    offset = c.sensor_time_offset or 0.0
-    if offset != 0.0:
-        cycles = abs(offset) / c.speed_cycle
-        whole = math.floor(cycles)
-        if whole + 2 > K.MAX_HIST:
-            raise ScenarioError(
-                f"control.sensor_time_offset = {offset} s is {cycles:.0f} speed cycles; "
-                f"at most {K.MAX_HIST - 2}"
-            )
-        p[K.P_OFS_SIGN] = math.copysign(1.0, offset)
-        p[K.P_OFS_N] = whole
-        p[K.P_OFS_FRAC] = cycles - whole
-        p[K.P_HIST_LEN] = whole + 2
-    else:
-        p[K.P_HIST_LEN] = 1.0
+    _reading_delays(axis, p)
+    _setpoint_delay(axis, p)
+    if c.scale_error_amplitude and c.scale_error_period:
+        p[K.P_SCALE_AMP] = c.scale_error_amplitude
+        p[K.P_SCALE_PERIOD] = c.scale_error_period
+        p[K.P_SCALE_PHASE] = c.scale_error_phase or 0.0
     p[K.P_INV_KR] = 1.0 / p[K.P_KR]
     # a lumped rigid model may have no motor-side inertia (J1 = 0 is then unused)
     p[K.P_INV_J1] = 1.0 / p[K.P_J1] if p[K.P_J1] > 0.0 else 0.0
     p[K.P_INV_M] = 1.0 / p[K.P_M]
     return p
+
+
+def _reading_delays(axis: AxisConfig, p: np.ndarray) -> None:
+    """How late the load and the motor readings are (speed cycles, whole and fraction):
+    the load by a positive ``control.sensor_time_offset``, the motor readings by a negative
+    one's |offset|, both by ``control.measurement_delay`` on top."""
+    c = axis.control
+    offset = c.sensor_time_offset or 0.0
+    common = c.measurement_delay or 0.0
+    load_s = common + max(offset, 0.0)
+    motor_s = common + max(-offset, 0.0)
+    longest = 0
+    for on, whole_i, frac_i, late_s in (
+        (K.P_LOAD_DLY_ON, K.P_LOAD_DLY_N, K.P_LOAD_DLY_FRAC, load_s),
+        (K.P_MOT_DLY_ON, K.P_MOT_DLY_N, K.P_MOT_DLY_FRAC, motor_s),
+    ):
+        if late_s == 0.0:
+            continue
+        cycles = late_s / c.speed_cycle
+        whole = math.floor(cycles)
+        p[on] = 1.0
+        p[whole_i] = whole
+        p[frac_i] = cycles - whole
+        longest = max(longest, whole)
+    if longest + 2 > K.MAX_HIST:
+        raise ScenarioError(
+            f"control.sensor_time_offset = {offset} s with control.measurement_delay = "
+            f"{common} s reads a sensor {longest} speed cycles late; at most {K.MAX_HIST - 2}"
+        )
+    if p[K.P_LOAD_DLY_ON] or p[K.P_MOT_DLY_ON]:
+        p[K.P_HIST_ON] = 1.0
+        p[K.P_HIST_LEN] = longest + 2
+    else:
+        p[K.P_HIST_LEN] = 1.0
+
+
+def _setpoint_delay(axis: AxisConfig, p: np.ndarray) -> None:
+    """The set point applied late: ``control.setpoint_delay`` d0 growing by
+    ``control.setpoint_delay_rate`` per second of the run, clipped to
+    :data:`kernel.MAX_SETPOINT_DELAY_S`; the history holds the longest delay it can reach."""
+    c = axis.control
+    d0 = c.setpoint_delay or 0.0
+    rate = c.setpoint_delay_rate or 0.0
+    if d0 == 0.0 and rate == 0.0:
+        return
+    longest_s = min(d0, K.MAX_SETPOINT_DELAY_S) if rate == 0.0 else K.MAX_SETPOINT_DELAY_S
+    length = math.floor(longest_s / c.speed_cycle + 1e-9) + 2
+    if length > K.MAX_SP_HIST:
+        raise ScenarioError(
+            f"control.setpoint_delay = {d0} s (rate {rate} s/s) may reach {longest_s} s, "
+            f"{length - 2} speed cycles of {c.speed_cycle:g} s; at most {K.MAX_SP_HIST - 2}"
+        )
+    p[K.P_SP_DLY_ON] = 1.0
+    p[K.P_SP_DLY0] = d0
+    p[K.P_SP_DLY_RATE] = rate
+    p[K.P_SPH_LEN] = length
 
 
 def initial_state(axis: AxisConfig, position: float = 0.0) -> np.ndarray:
@@ -261,7 +308,8 @@ class AxisPlant(Plant):
 
     @property
     def motor_position_rad(self) -> float:
-        """Motor encoder reading (older by |control.sensor_time_offset| when negative)."""
+        """Motor encoder reading (older by control.measurement_delay, and by
+        |control.sensor_time_offset| when that is negative)."""
         return float(K.motor_measured(self._p, self._st))
 
     @property
@@ -273,8 +321,9 @@ class AxisPlant(Plant):
 
     @property
     def load_position(self) -> float:
-        """Direct measuring system, load units (older by control.sensor_time_offset when
-        positive: read at t − offset, interpolated between speed cycles)."""
+        """Direct measuring system, load units (older by control.measurement_delay, and by
+        control.sensor_time_offset when positive: read at t − d, interpolated between speed
+        cycles; with the scale's periodic error, control.scale_error_*)."""
         return float(K.load_measured(self._p, self._st))
 
     @property

@@ -9,7 +9,9 @@ between the speed controller's sampling instants; the controllers are plain Pyth
 Two deliberate differences, both for runs in which the load does not stick:
 - Coulomb friction is ``coulomb·sign(v)`` (no stiction logic: an ODE solver cannot hold a
   set-valued force); while the load moves both models are the same equations.
-- Dead time is not modelled (``control.delay`` must be absent or 0).
+- Dead time is not modelled (``control.delay`` must be absent or 0), nor a late set point or
+  reading or a scale error (``control.setpoint_delay``, ``measurement_delay``,
+  ``scale_error_*``).
 
 The speed filter (``control.speed_filter``) is its ODE, integrated by solve_ivp over each
 speed cycle with the cycle's encoder difference as input.
@@ -80,7 +82,15 @@ def simulate_reference(
     c = axis.control
     if c.delay:
         raise ScenarioError("the reference implementation has no dead time (control.delay)")
-    for key in ("velocity_feedforward", "acceleration_feedforward", "sensor_time_offset"):
+    for key in (
+        "velocity_feedforward",
+        "acceleration_feedforward",
+        "sensor_time_offset",
+        "setpoint_delay",
+        "setpoint_delay_rate",
+        "measurement_delay",
+        "scale_error_amplitude",
+    ):
         if getattr(c, key):
             raise ScenarioError(f"the reference implementation has no control.{key}")
     kr = axis.transmission_ratio

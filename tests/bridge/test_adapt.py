@@ -25,9 +25,9 @@ from bridge.adapt import plan as adapt_plan
 from bridge.errors import DriveSetupError
 from bridge.layout import Signal
 from bridge.probe import COMMISSIONING_FIELDS, mappable_from_eds, profile_from_facts
-from bridge.profile import DriveProfile, LoadSource, load_profile
 from tests.adapt_helpers import ENCODER_EDS, TECHNOSOFT_EDS, YIYOU_EDS, local_rig
 from tests.paths import ROOT
+from virtual_bus.formats.drive_profile import DriveProfile, LoadSource, load_profile
 
 DRIVES = ROOT / "config" / "drives"
 SIM_EDS = ROOT / "config" / "drive.eds"

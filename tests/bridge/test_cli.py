@@ -176,7 +176,13 @@ def test_run_against_the_simulated_drive(
     ids = [f.arbitration_id for f in frames]
     assert ids.count(0x080) == drive.sync_count
     assert 0x602 in ids and 0x582 in ids  # the SDO start-up is in the log
-    assert frames[-1].arbitration_id == 0x202 and bytes(frames[-1].data[:2]) == b"\x07\x00"
+    rpdos = [f for f in frames if f.arbitration_id == 0x202]
+    assert bytes(rpdos[-1].data[:2]) == b"\x07\x00"  # switch on: at rest after the move
+    # the end: the drive's watch of the bridge given back as it was (1016h:01 = 0) over SDO
+    last_sync = len(ids) - 1 - ids[::-1].index(0x080)
+    writes = [bytes(f.data[:4]) for f in frames[last_sync:] if f.arbitration_id == 0x602]
+    assert b"\x23\x16\x10\x01" in writes  # 1016h:01 downloaded (4 bytes, expedited)
+    assert drive.read_object(0x1016, 1) == 0
 
 
 def test_run_exits_1_when_a_fault_stops_the_axis(

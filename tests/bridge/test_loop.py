@@ -156,13 +156,13 @@ def test_heartbeat_loss_stops_the_axis(bus_mode: Interface) -> None:
     with simulated_axis(AXIS, params(), interface=bus_mode) as sim:
         _moving(sim)
         c = sim.bridge.controller
-        last_beat = c._heartbeat_at
+        last_beat = c.drive_watch.heartbeat_at
         assert last_beat is not None  # the drive's 100 ms heartbeat is monitored
         sim.drive.write_object(0x1017, 0, 0)  # the drive's heartbeat producer stops
         sim.bridge.run(until=lambda b: b.controller.state is BridgeState.STOPPED)
         assert c.stop_reason is StopReason.HEARTBEAT_LOST
         # detected in the first cycle beyond the 250 ms consumer time of 1016h
-        assert 0.250 < c.now_s - c._heartbeat_at <= 0.251 + 1e-9
+        assert 0.250 < c.now_s - c.drive_watch.heartbeat_at <= 0.251 + 1e-9
         assert "1016h" in c.stop_message
         _no_setpoints_after(sim, 400)
 

@@ -74,15 +74,19 @@ def rig() -> Iterator[Rig]:
             bus.shutdown()
 
 
-def test_heartbeat_from_1017h_carries_the_nmt_state(rig: Rig) -> None:
-    assert rig.master.sdo[0x1017].raw == 0  # off by default: the bus traffic is unchanged
-    rig.master.sdo[0x1017].raw = 100
-    rig.clock.now += 0.1  # the period starts at the first tick after the write
+def test_boot_up_then_heartbeat_from_1017h_carries_the_nmt_state(rig: Rig) -> None:
+    """The bridge announces itself (boot-up when it starts) and sends its heartbeat every
+    100 ms by default: a drive's heartbeat consumer, or any watching node, sees it alive."""
+    assert bytes(rig.frame(0x701).data) == b"\x00"  # the boot-up of Bridge.start()
+    assert rig.master.sdo[0x1017].raw == 100
     assert rig.heartbeat() == 5  # operational: the bridge runs its network
     for command, state in (("PRE-OPERATIONAL", 127), ("STOPPED", 4), ("OPERATIONAL", 5)):
         rig.master.nmt.state = command
         assert rig.heartbeat() == state, command
     rig.master.sdo[0x1017].raw = 0
+    assert rig.bridge.nmt.heartbeats_sent == 4
+    rig.clock.now += 1.0  # no heartbeat with 1017h = 0
+    rig.bridge.nmt.tick(rig.clock.now)
     assert rig.bridge.nmt.heartbeats_sent == 4
 
 
@@ -105,7 +109,7 @@ def test_no_sdo_answer_in_stopped(rig: Rig) -> None:
 
 
 def test_reset_communication_sends_boot_up_and_enters_pre_operational(rig: Rig) -> None:
-    rig.master.sdo[0x1017].raw = 100
+    assert bytes(rig.frame(0x701).data) == b"\x00"  # the boot-up of Bridge.start()
     rig.master.nmt.send_command(0x82)  # reset communication
     assert bytes(rig.frame(0x701).data) == b"\x00"  # boot-up
     rig.clock.now += 0.1

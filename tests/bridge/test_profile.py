@@ -1,4 +1,5 @@
-"""Drive profiles (bridge.profile), ``bridge probe`` and ``bridge run --drive-profile`` on the
+"""Drive profiles (virtual_bus.formats.drive_profile), ``bridge probe`` and
+``bridge run --drive-profile`` on the
 command line, the bus-load check, and the loop with an adapted layout against the simulated
 drive (motor feedback, other PDO numbers)."""
 
@@ -19,7 +20,6 @@ from bridge.interpolator import Move
 from bridge.layout import Signal
 from bridge.node import BridgeConfig
 from bridge.params import BridgeParams
-from bridge.profile import DriveProfile, LoadSource, ProfileError, load_profile, render_profile
 from bridge.run import check_bus_load
 from cmdline import cli
 from hil.harness import simulated_axis
@@ -28,6 +28,13 @@ from tests.adapt_helpers import ENCODER_EDS, TECHNOSOFT_EDS, mirror_mode, requir
 from tests.paths import ROOT
 from virtual_bus import Interface
 from virtual_bus.formats.axis import load_axis
+from virtual_bus.formats.drive_profile import (
+    DriveProfile,
+    DriveProfileError,
+    LoadSource,
+    load_profile,
+    render_profile,
+)
 
 DRIVES = ROOT / "config" / "drives"
 AXIS = load_axis(ROOT / "config" / "paper_axis.toml")
@@ -61,7 +68,7 @@ def test_bad_profile_is_one_line_naming_key_value_and_allowed(
 ) -> None:
     path = tmp_path / "bad.toml"
     path.write_text(text, encoding="utf-8")
-    with pytest.raises(ProfileError) as info:
+    with pytest.raises(DriveProfileError) as info:
         load_profile(path)
     message = str(info.value)
     assert needle in message and "\n" not in message and str(path) in message
@@ -108,7 +115,7 @@ def test_probe_command_against_a_localnode_writes_the_profile(
     finally:
         server.disconnect()
     text = capsys.readouterr().out
-    assert code == 0
+    assert code == 1  # the start-up would stop: the profile is written, to be completed
     assert "6502h drive modes     0x001F0065" in text
     assert "start-up would stop: 3 problem(s), all of them:" in text
     assert "1. drive 2: 608Fh position encoder resolution not readable" in text

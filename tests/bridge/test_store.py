@@ -7,7 +7,12 @@ defaults back at the next start; a store file the bridge would refuse stops the 
 from __future__ import annotations
 
 import json
+import os
+import random
+import re
+import signal
 import struct
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,12 +22,15 @@ import pytest
 
 from bridge.errors import SdoAbort, StoreError
 from bridge.node import BridgeConfig
+from bridge.store import ParameterStore
+from tests.bridge.store_trials import NEW, OLD
 from tests.bridge_helpers import (  # tests/ helper module
     abort_code,
     idle_bridge,
     paper_bridge,
     sdo_tool,
 )
+from tests.forking import Forker
 from virtual_bus.formats.axis import load_axis
 
 AXIS = load_axis("config/paper_axis.toml")
@@ -163,3 +171,35 @@ def test_store_file_with_refused_values_stops_the_start(
     path = _stored(tmp_path, objects)
     with pytest.raises(StoreError, match=fragment):
         paper_bridge(bus_pair[0], BridgeConfig(store_path=path))
+
+
+KILL_TRIALS = 20
+#: Backstop of the wait for a store's saves (the child ends it first only by failing).
+SAVES_BACKSTOP_S = 300.0
+
+
+def test_a_store_killed_at_any_moment_leaves_the_old_or_the_new(tmp_path: Path) -> None:
+    """A process saving two sets of values in turn, SIGKILLed after a random number of
+    saves and a random number of further looks: the store is one set or the other, complete,
+    every time; at most a temporary file beside it, which nothing reads."""
+    rng = random.Random()
+    with Forker(["tests.bridge.store_trials"]) as forker:
+        for trial in range(KILL_TRIALS):
+            folder = tmp_path / f"trial_{trial}"
+            store = folder / "axis.bridge-store.json"
+            folder.mkdir()
+            ParameterStore(store).save(OLD)
+            pid = forker.start("tests.bridge.store_trials:save_in_turn", [str(store)], folder)
+            saves, inode = rng.randrange(0, 6), store.stat().st_ino
+            deadline = time.monotonic() + SAVES_BACKSTOP_S
+            while saves and time.monotonic() < deadline and not forker.ended():
+                if store.stat().st_ino != inode:  # a rename: one save more
+                    inode, saves = store.stat().st_ino, saves - 1
+            for _ in range(rng.randrange(0, 2000)):
+                store.exists()
+            os.kill(pid, signal.SIGKILL)
+            assert forker.wait() == "signal 9", (folder / "child.err").read_text()
+            assert ParameterStore(store).load() in (OLD, NEW)
+            left = {p.name for p in folder.iterdir()} - {store.name, "child.out", "child.err"}
+            temporary = rf"\.{re.escape(store.name)}\.[0-9a-f]{{8}}\.tmp"
+            assert all(re.fullmatch(temporary, name) for name in left), left

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
 
@@ -20,26 +21,38 @@ from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.shipped import SHARED_DIR
 
 SPEC = SHARED_DIR / "spec" / "axis-file.md"
+#: The project's own axis-file document (its table adds the effects of the kernel's keys).
+OWN_SPEC = Path(__file__).resolve().parents[2] / "docs" / "axis-file.md"
+#: Effects this project added to the shared spec's table.
+ADDED = {"sensor_time_offset", "setpoint_delay", "measurement_delay", "scale_error"}
 
 
 def rigid_axis() -> AxisConfig:
     return slide_axis()
 
 
-@pytest.mark.skipif(not SPEC.exists(), reason="shared spec not present")
-def test_effect_names_and_keys_are_the_specs_table() -> None:
-    """Second source: the table of axis-file.md, parsed."""
-    text = SPEC.read_text(encoding="utf-8")
+def _table(path: Path) -> dict[str, list[str]]:
+    text = path.read_text(encoding="utf-8")
     rows = re.findall(r"^\| `(\w+)` \| (.+?) \|$", text, flags=re.MULTILINE)
     table: dict[str, list[str]] = {}
     for name, keys in rows:
         parts = [k.strip() for k in keys.split(",")]
         section = parts[0].split(".")[0]
         table[name] = [k if "." in k and not k.startswith(".") else f"{section}{k}" for k in parts]
-    # the spec's table, plus the effects this project added (docs/diagnosis.md)
-    assert set(table) | {"sensor_time_offset"} == {e.value for e in Effect}
+    return table
+
+
+@pytest.mark.skipif(not SPEC.exists(), reason="shared spec not present")
+def test_effect_names_and_keys_are_the_specs_table() -> None:
+    """Second source: the table of the shared spec's axis-file.md, parsed, plus the effects
+    the project added (the table of its own docs/axis-file.md)."""
+    table = _table(SPEC)
+    own = _table(OWN_SPEC)
+    assert set(table) | ADDED == {e.value for e in Effect}
     for name, keys in table.items():
         assert list(EFFECT_KEYS[Effect(name)]) == keys, name
+    for name in ADDED - {"sensor_time_offset"}:
+        assert list(EFFECT_KEYS[Effect(name)]) == own[name], name
     assert EFFECT_KEYS[Effect.SENSOR_TIME_OFFSET] == ("control.sensor_time_offset",)
 
 

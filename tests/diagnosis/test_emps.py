@@ -57,6 +57,12 @@ def test_fitted_model_beats_the_published_reference_on_both_recordings(
     assert [g.effect for g in gate] == list(result.evidence.named)
     assert all(g.kept == (g.gain >= result.options.min_improvement) for g in gate), gate
     assert len(result.left_out) == sum(g.kept for g in gate)
+    # never worse than the nominal: on the recording's held-out blocks (the diagnosis's own
+    # guard) and on the pulses recording it never saw, scored by the data set's force error
+    assert result.heldout_final.cost <= result.heldout_nominal.cost
+    fitted_pulses = relative_force_error(result.fitted, validation).percent
+    nominal_pulses = relative_force_error(nominal, validation).percent
+    assert fitted_pulses <= nominal_pulses, (start, fitted_pulses, nominal_pulses)
     reference = load_axis(CONFIG / "emps_reference.toml")
     for trace in (estimation, validation):
         fitted_error = relative_force_error(result.fitted, trace).percent

@@ -62,6 +62,12 @@ def test_every_effect_strips_to_a_valid_axis_without_it(effect: Effect) -> None:
             "control.torque_limit": 3.0,
             "control.delay": 0.000375,
             "control.sensor_time_offset": 0.001,
+            "control.setpoint_delay": 0.002,
+            "control.setpoint_delay_rate": 1e-4,
+            "control.measurement_delay": 0.0005,
+            "control.scale_error_amplitude": 5e-6,
+            "control.scale_error_period": 0.0125,
+            "control.scale_error_phase": 0.3,
         }
     )
     model = MODELS[effect]
@@ -140,13 +146,15 @@ def test_a_data_sheet_that_is_wrong_is_said_to_be_and_fitted_around_the_evidence
 
 @pytest.mark.slow
 def test_physics_outside_the_table_is_unexplained_here_with_where() -> None:
-    """A friction patch the table cannot state (0.05 N·m more in 0.11-0.13 m of travel):
+    """A friction patch the table cannot state (0.15 N·m more in 0.11-0.13 m of travel):
     no effect of the table explains it; the report says the model class does not explain
-    the recording and locates it in position, never that nothing is left out."""
+    the recording and locates it in position, never that nothing is left out. (A patch of
+    0.05 N·m is 8 σ of the noise in its range: below the local bar of 15 σ that clean axes
+    of the FMU family need, docs/diagnosis.md, "Unexplained, here".)"""
     truth = slide_axis()
 
     def patch(x: np.ndarray) -> np.ndarray:
-        return 0.05 * ((x > 0.11) & (x < 0.13))
+        return 0.15 * ((x > 0.11) & (x < 0.13))
 
     rec = _recording(truth, 10.0, 3, patch)
     d = diagnose(rec, truth)

@@ -190,3 +190,18 @@ def test_between_blocks_factor_of_white_and_correlated_scores() -> None:
     assert between_blocks_factor(white) == pytest.approx(1.0, abs=0.35)
     corr = _ar([0.8], 1600, rng)[:, None]
     assert 5.0 < between_blocks_factor(corr) < 10.0
+
+
+def test_scan_test_with_no_candidate_signal_says_nothing() -> None:
+    """Candidates without any signal (a regressor of a motion the recording lacks: a short
+    or motionless recording) leave nothing to test: p = 1, no exception (the demo's
+    recordings raised before)."""
+    rng = np.random.default_rng(3)
+    n = 400
+    y = rng.standard_normal(n)
+    base = rng.standard_normal((n, 2))
+    blocks = np.repeat(np.arange(8), n // 8)
+    cands = [np.zeros(n), np.zeros((n, 2))]
+    result = scan_test(y, base, cands, blocks, rng)
+    assert result.p == 1.0
+    assert result.statistic == 0.0

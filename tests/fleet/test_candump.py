@@ -17,13 +17,13 @@ from bridge.cycle import BridgeState
 from bridge.interpolator import Move
 from bridge.node import BridgeConfig
 from bridge.params import BridgeParams
-from bridge.profile import LoadSource, load_profile
 from fleet.candump import CandumpLayout, layout_for, read_candump_chunks
 from hil.harness import simulated_axis
 from regulator import RegulatorConfig
 from tests.paths import ROOT
 from virtual_bus import Interface
 from virtual_bus.formats.axis import load_axis
+from virtual_bus.formats.drive_profile import LoadSource, load_profile
 
 AXIS = load_axis(ROOT / "config" / "paper_axis.toml")
 DRIVES = ROOT / "config" / "drives"

@@ -224,7 +224,7 @@ def test_drive_and_bridge_as_two_processes_over_udp(
     last = out.strip().splitlines()[-1]
     assert last == (
         f"drive 2: stopped on SIGTERM, bus closed; {got['syncs']} SYNCs served; CiA 402 "
-        "switched on, NMT operational, active errors none"
+        "switched on, NMT operational, active errors none; refused frames (2105h) none"
     )
     assert got["load_nm"] == pytest.approx(TARGET_M * 1e9, abs=2e4)
     check_bus_log(log, UDP_GROUP, got["syncs"], started)

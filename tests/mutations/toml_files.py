@@ -117,8 +117,15 @@ PROFILE_SCHEMA = TomlSchema(
         "load.object_type": Kind.ENUM,
         "load.encoder_id": Kind.INT,
         "scaling.rated_torque_mnm": Kind.INT,
+        "supervision.heartbeat_consumer_entries": Kind.INT,
+        "supervision.abort_connection_option": Kind.INT,
+        "supervision.setpoint_timeout_object": Kind.OBJECT,
+        "supervision.setpoint_timeout": Kind.INT,
+        "supervision.setpoint_timeout_type": Kind.ENUM,
     },
     required=frozenset(),
+    # 6007h is INTEGER16: its negative values are the manufacturer's reactions
+    signed=frozenset({"supervision.abort_connection_option"}),
 )
 
 #: Replacements of a value: (name, value, verdict for a number key); for the other kinds the

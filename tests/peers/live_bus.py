@@ -79,7 +79,11 @@ class Program:
     def _read_err(self) -> None:
         assert self.proc.stderr is not None
         for line in self.proc.stderr:
-            self._err.append(line.rstrip("\n"))
+            with self._changed:
+                self._err.append(line.rstrip("\n"))
+                self._changed.notify_all()
+        with self._changed:
+            self._changed.notify_all()
 
     @property
     def stderr(self) -> str:
@@ -91,6 +95,20 @@ class Program:
         with self._changed:
             while not condition(self.lines):
                 if self.proc.poll() is not None and not self._threads[0].is_alive():
+                    raise AssertionError(
+                        f"{self.name} ended (exit {self.proc.returncode}) before {what}; "
+                        f"stderr: {self.stderr[-1500:]}"
+                    )
+                if time.monotonic() > deadline:
+                    raise AssertionError(f"{self.name}: no {what} in {STATE_BOUND_S:g} s")
+                self._changed.wait(1.0)
+
+    def wait_for_err(self, condition: Callable[[list[str]], bool], what: str) -> None:
+        """:meth:`wait_for` on the lines of standard error (a program's log)."""
+        deadline = time.monotonic() + STATE_BOUND_S
+        with self._changed:
+            while not condition(self._err):
+                if self.proc.poll() is not None and not self._threads[1].is_alive():
                     raise AssertionError(
                         f"{self.name} ended (exit {self.proc.returncode}) before {what}; "
                         f"stderr: {self.stderr[-1500:]}"

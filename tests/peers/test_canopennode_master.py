@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import struct
 import subprocess
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -189,14 +190,35 @@ def test_random_writes_answer_as_the_eds_predicts(peer: Peer) -> None:
 
 
 # --- NMT and heartbeat -----------------------------------------------------------------------
-def _sdo_answers(gw: cn.Gateway, node: int) -> bool:
-    """Whether the node answers an SDO upload (a short client time-out: a node that answers
-    late fails the test, a silent one cannot make it pass wrongly)."""
-    assert gw.command("set sdo_timeout 500").ok
-    try:
+def _timed_read(peer: Peer) -> float:
+    """How long one SDO upload of the node takes now (s): the test's own measure."""
+    started = time.monotonic()
+    peer.read(0x1000, 0)
+    return time.monotonic() - started
+
+
+#: A node silent in Stopped is given this many times its slowest answer of the test (at least
+#: :data:`SILENT_MIN_MS`): sized from what the test measures, not a fixed time-out a busy
+#: machine can outlast.
+SILENT_FACTOR = 20
+SILENT_MIN_MS = 500
+
+
+def _sdo_answers(gw: cn.Gateway, node: int, expect: bool, slowest_s: list[float]) -> bool:
+    """Whether the node answers an SDO upload. Where an answer is expected, the gateway's long
+    time-out (a busy machine may answer late, the answer counts); where silence is expected,
+    :data:`SILENT_FACTOR` times the slowest answer measured so far in ``slowest_s``."""
+    if expect:
+        started = time.monotonic()
         answer = gw.read(node, 0x1000, 0)
-    finally:
-        assert gw.command(f"set sdo_timeout {cn.SDO_TIMEOUT_MS}").ok
+        slowest_s.append(time.monotonic() - started)
+    else:
+        wait_ms = max(SILENT_MIN_MS, round(SILENT_FACTOR * 1e3 * max(slowest_s, default=0.0)))
+        assert gw.command(f"set sdo_timeout {wait_ms}").ok
+        try:
+            answer = gw.read(node, 0x1000, 0)
+        finally:
+            assert gw.command(f"set sdo_timeout {cn.SDO_TIMEOUT_MS}").ok
     assert answer.ok or answer.abort == 0x0504_0000, answer.text  # data or time-out
     return answer.ok
 
@@ -204,6 +226,7 @@ def _sdo_answers(gw: cn.Gateway, node: int) -> bool:
 def test_nmt_stop_preop_start_seen_by_the_heartbeat_consumer(peer: Peer) -> None:
     """Each command changes the state (the drive boots pre-operational, the bridge is
     operational): CANopenNode's consumer logs each change; no SDO in Stopped."""
+    slowest: list[float] = [_timed_read(peer)]
     for command, state in (
         ("stop", "stopped"),
         ("preop", "pre-operational"),
@@ -212,7 +235,8 @@ def test_nmt_stop_preop_start_seen_by_the_heartbeat_consumer(peer: Peer) -> None
         start = len(peer.gw.log)
         assert peer.gw.nmt(peer.node_id, command).ok
         heartbeat_seen(peer.gw, peer.node_id, state, start)
-        assert _sdo_answers(peer.gw, peer.node_id) is (state != "stopped"), state
+        answers = state != "stopped"
+        assert _sdo_answers(peer.gw, peer.node_id, answers, slowest) is answers, state
 
 
 def test_heartbeat_consumer_sees_both_nodes(drive: Peer, bridge: Peer) -> None:

@@ -20,7 +20,6 @@ import can
 import pytest
 
 from bridge.errors import BridgeError
-from bridge.profile import load_profile
 from diagnosis.__main__ import main as diagnosis_main
 from diagnosis.errors import DiagnosisError
 from diagnosis.replay import prepare_replay
@@ -33,7 +32,8 @@ from plant_sim.errors import PlantSimError
 from plant_sim.physics.model import AxisPlant
 from tests import mutations
 from virtual_bus.formats.axis import AxisConfig, AxisKind, load_axis
-from virtual_bus.formats.errors import FormatError
+from virtual_bus.formats.drive_profile import load_profile
+from virtual_bus.formats.errors import DriveProfileError, FormatError
 from virtual_bus.formats.trace import REQUIRED_COLUMNS, read_trace
 from virtual_bus.shipped import PAPER_AXIS
 
@@ -134,7 +134,7 @@ def test_trace_mutants_through_the_replay_and_the_monitors_reader(
 
 def test_profile_mutants_give_the_monitor_a_scaling_or_one_line(tmp_path: Path) -> None:
     mutants = mutations.profile_mutants()
-    loaded = mutations.load_each(mutants, tmp_path, ".toml", load_profile, (BridgeError,))
+    loaded = mutations.load_each(mutants, tmp_path, ".toml", load_profile, (DriveProfileError,))
     layouts = mutations.load_each(
         mutants, tmp_path, ".toml", lambda p: layout_for(AxisKind.LINEAR, p), ERRORS
     )

@@ -100,3 +100,57 @@ def test_numba_compiles_it_to_the_same_bits() -> None:
         b = f(c_nb, det_nb, x_ref, 0.02, x_fb, 0.0, True)
         assert a == b
         assert c_py == c_nb.tolist() and det_py == det_nb.tolist()
+
+
+def _vibrating_inputs(k: int, rng: np.random.Generator) -> tuple[float, float, float]:
+    x_ref = 1e-3 * math.sin(k / 50)
+    x_fb = x_ref - 1e-4 * math.sin(2 * math.pi * 11 * k * CYCLE_S) + 1e-7 * rng.normal()
+    return x_ref, 0.02 * math.cos(k / 50), x_fb
+
+
+@pytest.mark.parametrize("regulator_on", [False, True])
+def test_measure_then_apply_own_lambda_is_position_cycle_bit_for_bit(regulator_on: bool) -> None:
+    """The halves a shared lambda needs are the one cycle, split: with each axis's own lambda
+    they give position_cycle's every result and detector state, code for code (stops too)."""
+    kw = dict(regulator_on=regulator_on, velocity_feedforward=0.3, speed_limit_rad_s=50.0)
+    kw |= dict(following_error_limit=0.99e-4)  # the peaks of the shake stop it
+    c1, d1 = fresh(**kw)  # type: ignore[arg-type]
+    c2, d2 = fresh(**kw)  # type: ignore[arg-type]
+    rng1, rng2 = np.random.default_rng(11), np.random.default_rng(11)
+    codes = set()
+    for k in range(3000):
+        x_ref, speed, x_fb = _vibrating_inputs(k, rng1)
+        x_fb = math.nan if k == 2000 else x_fb
+        a = cycle.position_cycle(c1, d1, x_ref, speed, x_fb, 0.0, True)
+        x_ref, speed, x_fb = _vibrating_inputs(k, rng2)
+        x_fb = math.nan if k == 2000 else x_fb
+        b = cycle.measure(c2, d2, x_ref, speed, x_fb, 0.0, True)
+        if b == cycle.OK:
+            cycle.apply(c2, c2[cycle.Y_LAMBDA])
+        codes.add(a)
+        assert a == b
+        assert c1 == c2 and d1 == d2
+    assert codes == {cycle.OK, cycle.FOLLOWING_ERROR, cycle.NOT_FINITE}  # stops too
+
+
+def test_a_shared_lambda_is_the_smallest_and_makes_the_axes_alike() -> None:
+    """Two axes, one vibrating: with the shared lambda both set points follow eq. 15 with the
+    shaking axis's lambda (written out here), so the quiet axis fades its load scale out just
+    as much (eq. 1: the same dynamics on every contour axis)."""
+    (cx, dx), (cy, dy) = fresh(regulator_on=True), fresh(regulator_on=True)
+    rng = np.random.default_rng(5)
+    faded = 0
+    for k in range(600):
+        shake = 1e-4 * math.sin(2 * math.pi * 12 * k * CYCLE_S) + 1e-6 * rng.normal()
+        assert cycle.measure(cx, dx, 0.0, 0.0, shake, 0.0, True) == cycle.OK
+        assert cycle.measure(cy, dy, 1e-5, 0.0, 0.0, 0.0, True) == cycle.OK
+        own_x, own_y = cx[cycle.Y_LAMBDA], cy[cycle.Y_LAMBDA]
+        lam = cycle.shared_lambda((cx, cy))
+        assert lam == min(own_x, own_y)
+        for c in (cx, cy):
+            cycle.apply(c, lam)
+            ws, wc = c[cycle.Y_OMEGA_S], c[cycle.Y_OMEGA_C]
+            assert c[cycle.Y_OMEGA_R] == pytest.approx(ws - lam * (ws - wc), abs=1e-12)
+            assert c[cycle.Y_LAMBDA] == lam
+        faded += lam < 0.5
+    assert own_y == 1.0 and faded > 100  # y never shook; it faded with x all the same

@@ -96,6 +96,12 @@ RANGES: dict[str, Range] = {
     "control.acceleration_feedforward": Range(0.0, high=1e6),
     "control.sensor_time_offset": Range(-0.05, high=0.05),
     "control.speed_filter": Range(0.0, high=0.1),
+    "control.setpoint_delay": Range(0.0, high=0.1),
+    "control.setpoint_delay_rate": Range(-0.01, high=0.01),
+    "control.measurement_delay": Range(0.0, high=0.05),
+    "control.scale_error_amplitude": Range(0.0, high=0.01),
+    "control.scale_error_period": Range(0.0, low_open=True),
+    "control.scale_error_phase": Range(-1e3, high=1e3),
     "axis.transmission_ratio": Range(0.0, low_open=True),
 }
 
@@ -244,9 +250,47 @@ class Control:
     #: speed actual value the PI speed controller uses and the drive reports), 0..0.1;
     #: None or 0: no filter. A controller setting like current_lag, not an effect.
     speed_filter: float | None = None
+    #: s, 0..0.1: the drive applies the speed set point (and the torque feed-forward) this
+    #: much later than it gets it (bus, the drive's input stage); None: at once
+    setpoint_delay: float | None = None
+    #: s/s, -0.01..0.01 (needs setpoint_delay): the set point's dead time grows by this much
+    #: per second of the run, d(t) = clip(setpoint_delay + rate*t, 0, 0.1); None: constant
+    setpoint_delay_rate: float | None = None
+    #: s, 0..0.05: every reading the position loop and the recording get (motor and load
+    #: position, the speed actual value) is this much old; the drive's own speed loop reads
+    #: the encoder at once. Adds to sensor_time_offset's shift of the reading it concerns.
+    measurement_delay: float | None = None
+    #: load units, 0..0.01: periodic error of the load measuring system (a measurement error,
+    #: not a force): it reads x + amplitude*sin(2*pi*x/period + phase)
+    scale_error_amplitude: float | None = None
+    scale_error_period: float | None = None  # load units, > 0
+    scale_error_phase: float | None = None  # rad
 
     def __post_init__(self) -> None:
         _check_section("control", self)
+        if self.setpoint_delay_rate is not None and self.setpoint_delay is None:
+            raise _fail(
+                "control.setpoint_delay_rate",
+                self.setpoint_delay_rate,
+                "needs control.setpoint_delay (the dead time at the start of the run)",
+            )
+        if (self.scale_error_amplitude is None) != (self.scale_error_period is None):
+            given = (
+                "scale_error_amplitude"
+                if self.scale_error_amplitude is not None
+                else "scale_error_period"
+            )
+            raise _fail(
+                f"control.{given}",
+                getattr(self, given),
+                "control.scale_error_amplitude and control.scale_error_period go together",
+            )
+        if self.scale_error_phase is not None and self.scale_error_amplitude is None:
+            raise _fail(
+                "control.scale_error_phase",
+                self.scale_error_phase,
+                "needs control.scale_error_amplitude and scale_error_period",
+            )
         ratio = self.position_cycle / self.speed_cycle
         if abs(ratio - round(ratio)) > 1e-6 * ratio or round(ratio) < 1:
             raise _fail(

@@ -31,22 +31,51 @@ class TraceFileError(FormatError, ValueError):
         self.row = row
 
 
+class DriveProfileError(FormatError, ValueError):
+    """A drive profile (``config/drives/*.toml``, docs/commissioning.md) is unreadable or has
+    a bad key (``path``, ``key`` attributes)."""
+
+    def __init__(self, message: str, *, path: str = "", key: str = "") -> None:
+        super().__init__(message)
+        self.path = path
+        self.key = key
+
+
 class TraceWarning(UserWarning):
     """A trace column looks implausible for its unit (never rescaled silently)."""
+
+
+class TornTailWarning(UserWarning):
+    """A file of records (a trace, a candump log) ends in one its writer did not finish (a
+    kill, a power loss, a full disk mid-write): readers keep every whole record before it and
+    drop the tail, naming the file, the byte where it starts and its length."""
 
 
 def read_text(path: Path, what: str, error: type[FormatError]) -> str:
     """The text of the file ``path`` holding ``what`` ("axis file"): UTF-8, a byte-order mark
     (an editor's or a spreadsheet's export) dropped; ``error`` in one line naming the file
     when it is missing, unreadable or not UTF-8."""
+    return decode_text(read_bytes(path, what, error), path, what, error)
+
+
+def read_bytes(path: Path, what: str, error: type[FormatError]) -> bytes:
+    """The bytes of the file ``path`` holding ``what``; ``error`` in one line naming the file
+    when it is missing or unreadable."""
     try:
-        return path.read_text(encoding="utf-8-sig")
+        return path.read_bytes()
     except FileNotFoundError:
         raise error(f"{path}: no such {what}") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+
+
+def decode_text(data: bytes, path: Path, what: str, error: type[FormatError]) -> str:
+    """``data`` read from ``path`` as UTF-8 text, a byte-order mark dropped; ``error`` naming
+    the first byte that is not UTF-8."""
+    try:
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise error(
             f"{path}: byte {exc.start} (0x{exc.object[exc.start]:02X}) is not UTF-8; "
             f"{what}s are UTF-8 text"
         ) from None
-    except OSError as exc:
-        raise error(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None

@@ -2,8 +2,11 @@
 
 :class:`Trace` holds named float64 columns of equal length. :func:`read_trace` enforces the
 spec's rules (required columns, numeric cells, finite values, strictly increasing time, at
-least 100 rows) and warns on implausible units without rescaling; :class:`TraceWriter` writes
-row by row and flushes regularly so a killed recorder leaves a readable file.
+least 100 rows) and warns on implausible units without rescaling; it reads a file up to its
+last line end and drops a torn last row with one warning (:mod:`.records`). :class:`TraceWriter`
+writes row by row in blocks (:class:`~.records.RecordFile`), so a recorder killed at any moment
+leaves whole rows and at most one torn last row; :meth:`Trace.to_csv` replaces a file whole
+(:func:`virtual_bus.atomic.replacing`).
 """
 
 from __future__ import annotations
@@ -15,12 +18,13 @@ import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
 
 import numpy as np
 
+from ..atomic import replacing
 from ..closing import Closing
-from .errors import TraceFileError, TraceWarning, read_text
+from .errors import TraceFileError, TraceWarning, decode_text, read_bytes
+from .records import RecordFile, torn_tail, whole_lines_end
 
 REQUIRED_COLUMNS = ("time", "motor_position", "motor_torque")
 MIN_ROWS = 100
@@ -112,20 +116,23 @@ class Trace:
         return Trace({k: v[keep] for k, v in self.columns.items()})
 
     def to_csv(self, path: str | Path) -> None:
-        with TraceWriter(path, self.names) as writer:
+        """Write the trace to ``path``, replacing the file whole: a kill leaves the file that
+        was there (or none) or the complete new one, never a part."""
+        with replacing(Path(path)) as tmp, TraceWriter(tmp, self.names) as writer:
             writer.write_rows(np.column_stack([self.columns[c] for c in self.names]))
 
 
 class TraceWriter(Closing):
     """Row-wise CSV writer: rows are collected and every ``flush_every`` rows (and on close)
-    written as one block in a single unbuffered write, so the file only ever holds whole rows
-    and a recorder killed mid-run leaves a trace that reads back up to its last block."""
+    appended as one block (:class:`~.records.RecordFile`: short writes finished, a failed
+    write undone). A recorder killed at any moment leaves the header and whole rows, and at
+    most one last row cut short without its line end, which the readers drop."""
 
     def __init__(self, path: str | Path, columns: Sequence[str], flush_every: int = 100) -> None:
         if "time" not in columns:
             raise TraceFileError("a trace needs a 'time' column", column="time")
         self.columns = list(columns)
-        self._file: BinaryIO = open(path, "wb", buffering=0)  # noqa: SIM115 - closed in close()
+        self._file = RecordFile(path, pad=False)
         self._file.write((",".join(self.columns) + "\n").encode())
         self._fmt = ",".join(["%r"] * len(self.columns)) + "\n"
         self._flush_every = max(1, flush_every)
@@ -146,7 +153,7 @@ class TraceWriter(Closing):
 
     def flush(self) -> None:
         if self._lines:
-            self._file.write("".join(self._lines).encode())
+            self._file.write_lines(self._lines)
             self._lines.clear()
 
     def close(self) -> None:
@@ -265,9 +272,14 @@ def sample_time_problem(time: np.ndarray, source: str) -> str | None:
 
 
 def read_trace(path: str | Path, required: Sequence[str] = REQUIRED_COLUMNS) -> Trace:
-    """Read and check a trace file; raises TraceFileError naming the column or row."""
+    """Read and check a trace file; raises TraceFileError naming the column or row. A last
+    row without its line end (a recorder stopped mid-write) is dropped with one
+    :class:`~.errors.TornTailWarning`; every row before it is read."""
     path = Path(path)
-    text = read_text(path, "trace file", TraceFileError)
+    data = read_bytes(path, "trace file", TraceFileError)
+    end = whole_lines_end(data)
+    torn_tail(str(path), end, len(data), "row")
+    text = decode_text(data[:end], path, "trace file", TraceFileError)
     try:
         rows = list(csv.reader(io.StringIO(text, newline="")))
     except csv.Error as exc:

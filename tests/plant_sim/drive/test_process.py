@@ -364,9 +364,13 @@ def test_the_next_window_is_dated_from_the_syncs_arrival_not_from_a_late_wake_up
     class Drive:  # what the loop reads of the drive
         node_id, sync_count = 2, 0
         port = MessagePort(Bus())  # type: ignore[arg-type]
+        holding = False  # at rest, power off: its own clock runs nothing
 
         def check(self) -> None:
             pass
+
+        def watch_master(self, now_s: float) -> float | None:
+            return None  # no master watched
 
         def take(
             self, cob_id: int, port: MessagePort, handle: Callable[[can.Message], None]

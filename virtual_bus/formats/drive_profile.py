@@ -5,7 +5,7 @@ Every key is optional; what a profile leaves out the start-up reads from the dri
 1018h, 6502h, 608Fh, 6091h, 6092h, 6076h, the PDO objects) or takes from the contract
 (docs/canopen_layout.md). ``python -m bridge probe --out`` writes one from a connected drive.
 
-:func:`load_profile` validates the file; a bad one raises :class:`ProfileError` (exit 2 in
+:func:`load_profile` validates the file; a bad one raises :class:`DriveProfileError` (exit 2 in
 the CLI) with one line naming the key, the value and what is allowed.
 """
 
@@ -17,18 +17,11 @@ from dataclasses import dataclass, fields
 from enum import Enum
 from pathlib import Path
 
-from .errors import BridgeConfigError
+from virtual_bus.contract import COMMUNICATION_AREA
+
+from .errors import DriveProfileError
 
 ObjectKey = tuple[int, int]
-
-
-class ProfileError(BridgeConfigError):
-    """A drive profile file is unreadable or has a bad key (``path``, ``key`` attributes)."""
-
-    def __init__(self, message: str, *, path: str = "", key: str = "") -> None:
-        super().__init__(message)
-        self.path = path
-        self.key = key
 
 
 class ModeChoice(Enum):
@@ -73,7 +66,7 @@ def parse_key(text: object, where: str = "object") -> ObjectKey:
         key = (int(index, 16), int(sub, 16))
     except ValueError:
         raise ValueError(f'{where} = {text!r}: write an object as "IIIIh:SS" (hex)') from None
-    if not (0x1000 <= key[0] <= 0xFFFF and 0 <= key[1] <= 0xFE):
+    if not (COMMUNICATION_AREA.start <= key[0] <= 0xFFFF and 0 <= key[1] <= 0xFE):
         raise ValueError(f"{where} = {text!r}: index 1000h..FFFFh, sub-index 00h..FEh")
     return key
 
@@ -100,6 +93,13 @@ class DriveProfile:
     (None: 608Fh/6091h/6092h of the drive). velocity_units_per_rev_s: 606Ch/60FFh units per
     motor revolution per second (None: position units per s). rated_torque_mnm: 6076h in
     mN·m (None: read 6076h; 0: torque shown in per mille of the rated torque).
+
+    How the drive supervises the bridge (``bridge.supervision``; CiA 301 1016h, CiA 402
+    6007h): heartbeat_consumer_entries: the number of 1016h entries (None: read 1016h:00; 0:
+    the drive has no heartbeat consumer). abort_connection_option: the 6007h value written
+    (None: 3, quick stop, where the drive has 6007h). setpoint_timeout_object /
+    setpoint_timeout / setpoint_timeout_type: a manufacturer set-point watchdog and the
+    value written to it (None: none; the contract's drive has 2102h, SYNCs without an RPDO).
     """
 
     name: str = "adaptive"
@@ -122,10 +122,15 @@ class DriveProfile:
     position_increments_per_rev: float | None = None
     velocity_units_per_rev_s: float | None = None
     rated_torque_mnm: int | None = None
+    heartbeat_consumer_entries: int | None = None
+    abort_connection_option: int | None = None
+    setpoint_timeout_object: ObjectKey | None = None
+    setpoint_timeout: int = 3
+    setpoint_timeout_type: str = "u8"
 
     def __post_init__(self) -> None:
-        def bad(key: str, allowed: str) -> ProfileError:
-            return ProfileError(f"{key} = {getattr(self, key)!r}: {allowed}", key=key)
+        def bad(key: str, allowed: str) -> DriveProfileError:
+            return DriveProfileError(f"{key} = {getattr(self, key)!r}: {allowed}", key=key)
 
         def is_int(v: object) -> bool:
             return isinstance(v, int) and not isinstance(v, bool)
@@ -190,6 +195,26 @@ class DriveProfile:
         r = self.rated_torque_mnm
         if r is not None and not (is_int(r) and 0 <= r <= 0xFFFF_FFFF):
             raise bad("rated_torque_mnm", "an UNSIGNED32 in mN·m (0: torque in per mille)")
+        n = self.heartbeat_consumer_entries
+        if n is not None and not (is_int(n) and 0 <= n <= 127):
+            raise bad("heartbeat_consumer_entries", "1016h entries 0..127 (0: no consumer)")
+        a = self.abort_connection_option
+        if a is not None and not (is_int(a) and -32768 <= a <= 32767):
+            raise bad(
+                "abort_connection_option",
+                "a 6007h value, INTEGER16 (0 none, 1 fault, 2 disable voltage, 3 quick stop; "
+                "negative: the manufacturer's)",
+            )
+        if (
+            not isinstance(self.setpoint_timeout_type, str)
+            or self.setpoint_timeout_type not in OBJECT_TYPES
+        ):
+            raise bad("setpoint_timeout_type", f"one of {sorted(OBJECT_TYPES)}")
+        bits, signed = OBJECT_TYPES[self.setpoint_timeout_type]
+        top = (1 << (bits - 1 if signed else bits)) - 1
+        t = self.setpoint_timeout
+        if not (is_int(t) and 0 <= t <= top):
+            raise bad("setpoint_timeout", f"an integer 0..{top} ({self.setpoint_timeout_type})")
 
     def may_map(self, key: ObjectKey) -> bool:
         """The profile does not rule out mapping ``key``."""
@@ -218,6 +243,13 @@ _LAYOUT: dict[str, tuple[str, ...]] = {
         "load_increments_per_unit",
     ),
     "scaling": ("position_increments_per_rev", "velocity_units_per_rev_s", "rated_torque_mnm"),
+    "supervision": (
+        "heartbeat_consumer_entries",
+        "abort_connection_option",
+        "setpoint_timeout_object",
+        "setpoint_timeout",
+        "setpoint_timeout_type",
+    ),
 }
 _TOML_NAME = {"load_source": "source", "load_object": "object", "load_object_type": "object_type"}
 _TOML_NAME |= {"load_increments_per_unit": "increments_per_unit"}
@@ -239,7 +271,7 @@ def _convert(name: str, value: object, where: str) -> object:
             raise ValueError(
                 f"{where} = {value!r}: allowed {[s.value for s in LoadSource]}"
             ) from None
-    if name == "load_object":
+    if name in ("load_object", "setpoint_timeout_object"):
         return parse_key(value, where)
     if name == "mappable":
         if not isinstance(value, list):
@@ -253,19 +285,19 @@ def _convert(name: str, value: object, where: str) -> object:
 
 
 def load_profile(path: str | Path) -> DriveProfile:
-    """Read and validate a drive profile (:class:`ProfileError`, one line, on any fault)."""
+    """Read and validate a drive profile (:class:`DriveProfileError`, one line, on any fault)."""
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark is no key
     except OSError as exc:
-        raise ProfileError(f"{path}: cannot read ({exc.strerror})", path=str(path)) from None
+        raise DriveProfileError(f"{path}: cannot read ({exc.strerror})", path=str(path)) from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ProfileError(f"{path}: not valid TOML ({exc})", path=str(path)) from None
+        raise DriveProfileError(f"{path}: not valid TOML ({exc})", path=str(path)) from None
     values: dict[str, object] = {}
     for table, body in data.items():
         names = _LAYOUT.get(table)
         if names is None or not isinstance(body, dict):
-            raise ProfileError(
+            raise DriveProfileError(
                 f"{path}: [{table}]: unknown table; allowed {sorted(_LAYOUT)}",
                 path=str(path),
                 key=table,
@@ -275,7 +307,7 @@ def load_profile(path: str | Path) -> DriveProfile:
             where = f"{table}.{key}"
             name = by_toml.get(key)
             if name is None:
-                raise ProfileError(
+                raise DriveProfileError(
                     f"{path}: {where}: unknown key; allowed {sorted(by_toml)}",
                     path=str(path),
                     key=where,
@@ -283,19 +315,19 @@ def load_profile(path: str | Path) -> DriveProfile:
             try:
                 values[name] = _convert(name, value, where)
             except ValueError as exc:
-                raise ProfileError(f"{path}: {exc}", path=str(path), key=where) from None
+                raise DriveProfileError(f"{path}: {exc}", path=str(path), key=where) from None
     try:
         return DriveProfile(**values)  # type: ignore[arg-type]
-    except ProfileError as exc:
+    except DriveProfileError as exc:
         table = next(t for t, names in _LAYOUT.items() if exc.key in names)
         key = f"{table}.{_TOML_NAME.get(exc.key, exc.key)}"
-        raise ProfileError(f"{path}: {key}: {exc}", path=str(path), key=key) from None
+        raise DriveProfileError(f"{path}: {key}: {exc}", path=str(path), key=key) from None
 
 
 def _toml_value(name: str, value: object) -> str:
     if isinstance(value, Enum):
         return f'"{value.value}"'
-    if name == "load_object":
+    if name in ("load_object", "setpoint_timeout_object"):
         return f'"{format_key(value)}"'  # type: ignore[arg-type]
     if name == "mappable":
         keys = [f'"{format_key(k)}"' for k in sorted(value)]  # type: ignore[call-overload]
