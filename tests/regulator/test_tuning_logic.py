@@ -51,15 +51,15 @@ def synthetic(
 
 
 def test_the_motion_comes_back_and_its_windows_are_where_they_say() -> None:
-    p = MOTION.profile(CYCLE_S, KV, start=0.3)
+    p = MOTION.profile(CYCLE_S, KV)  # from 0: the runner adds where the axis stands
     assert len(p.watch) == len(p.rest) == len(p.standstill) == 2
-    assert p.position[0] == 0.3 and p.position[-1] == pytest.approx(0.3, abs=1e-12)
+    assert p.position[0] == 0.0 and p.position[-1] == pytest.approx(0.0, abs=1e-12)
     for a, b in p.watch:
         assert np.all(np.abs(p.speed[a:b]) == pytest.approx(0.02))
         assert a - np.nonzero(np.abs(p.speed[:a]) != 0.02)[0][-1] - 1 == 10 / KV / CYCLE_S
     for a, b in p.standstill:
         assert np.all(p.speed[a:b] == 0.0) and b - a == 100
-    assert MOTION.travel(CYCLE_S, KV) == pytest.approx(float(np.max(p.position) - 0.3))
+    assert MOTION.travel(CYCLE_S, KV) == pytest.approx(float(np.max(np.abs(p.position))))
 
 
 @pytest.mark.parametrize("frequency_hz", [6.25, 12.0, 25.0])  # eq. 13's band at k_v = 25
