@@ -59,11 +59,12 @@ def cache_misses() -> int:
     return total
 
 
-def warm_up(axis: AxisConfig, kernel: bool = True) -> WarmUp:
+def warm_up(axis: AxisConfig, kernel: bool = True, bridge: bool = True) -> WarmUp:
     """Load or compile what a closed-loop run of ``axis`` calls: the bridge's cycle
     (:func:`bridge.cyclecore.load`) and, with ``kernel`` (the axis is the compiled kernel's,
     not an FMU's), the drive's plant (:meth:`~plant_sim.physics.model.AxisPlant.warm_up`) and
-    the kernel's closed loop (:func:`~plant_sim.physics.simulate.simulate`, a few cycles)."""
+    the kernel's closed loop (:func:`~plant_sim.physics.simulate.simulate`, a few cycles);
+    ``bridge`` False: not the bridge's cycle (a command that runs no bridge)."""
     from bridge import cyclecore
 
     from .model import AxisPlant
@@ -71,7 +72,8 @@ def warm_up(axis: AxisConfig, kernel: bool = True) -> WarmUp:
 
     t0 = time.monotonic()
     before = cache_misses()
-    cyclecore.load()
+    if bridge:
+        cyclecore.load()
     if kernel:
         AxisPlant(axis).warm_up()
         n = 4

@@ -18,9 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fleet.analyse import analyse
+from fleet.episodes import Verdict
+from fleet.sources import RecordingKind, Source
 from hil.__main__ import main
 from plant_sim.paper import outputs
 from virtual_bus.formats.trace import read_trace
+from virtual_bus.shipped import PAPER_AXIS
 
 #: A number with its unit (a range "6.25–25 Hz" carries it once, at its end).
 WITH_UNIT = re.compile(
@@ -109,3 +113,25 @@ def test_json_prints_summary_json(demo: Demo, tmp_path: Path) -> None:
         assert main(["demo", "--out", str(tmp_path), "--json", "--quiet"]) == 0
     printed = json.loads(out.getvalue())
     assert printed == json.loads((tmp_path / "summary.json").read_text())
+
+
+def test_the_monitor_judges_the_demos_bus_log_as_its_trace(demo: Demo) -> None:
+    """The fleet monitor on the candump log of the ordinary run (a lockstep log, stamped
+    far less than the 1 ms cycle apart) gives the verdict and frequency the trace of the same
+    run gives, and says it timed the log by its SYNC count (issue 31 item 4)."""
+    axis = demo.out / "axis_limit_cycle.toml"
+    if not axis.exists():  # the axis as given limit-cycles
+        axis = PAPER_AXIS
+    log, trace = (
+        analyse(Source(demo.out / name, kind, "", "", None, axis))
+        for name, kind in (
+            ("bus_ordinary.log", RecordingKind.CANDUMP),
+            ("ordinary.csv", RecordingKind.TRACE),
+        )
+    )
+    assert log.ok and trace.ok, (log.error, trace.error)
+    assert trace.verdict is Verdict.IN_BAND  # Fig. 8's limit cycle
+    assert log.verdict is trace.verdict
+    assert log.dominant_frequency_hz == pytest.approx(trace.dominant_frequency_hz, rel=0.02)
+    assert log.duration_s == pytest.approx(trace.duration_s, abs=2e-3)
+    assert "SYNC count times 1 ms" in log.warning
