@@ -36,7 +36,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TextIO
 
-from cmdline.quantity import number, quantity
+from cmdline.quantity import number, quantity, resolved
 from virtual_bus.busload import frame_bits
 from virtual_bus.formats.axis import AxisKind
 
@@ -139,7 +139,7 @@ class Verdict:
             target = f"no target (ended at {quantity(self.final_position, u)})"
         else:
             off = self.final_position - self.target
-            where = f"{quantity(abs(off), u)} off" if off else "exactly"
+            where = f"{resolved(abs(off), u)} off"
             ok = "reached" if self.reached else "NOT reached"
             target = (
                 f"target {quantity(self.target, u)} {ok} ({where}, tolerance "
@@ -157,8 +157,9 @@ class Verdict:
             fe += f" at {quantity(self.max_following_error_at_s, 's')}"
         return (
             f"verdict: {target}; largest following error {fe}; {vib} (β above β_T "
-            f"{number(self.beta_t_rad_s)} rad/s, largest β {number(self.max_beta_rad_s)} "
-            f"rad/s); smallest λ {number(self.min_lambda)}; stop: {self.stop}"
+            f"{number(self.beta_t_rad_s)} rad/s, largest β "
+            f"{resolved(self.max_beta_rad_s, 'rad/s', floor=1e-3)}); smallest λ "
+            f"{number(self.min_lambda)}; stop: {self.stop}"
         )
 
     def as_json(self) -> dict[str, Any]:
@@ -366,9 +367,10 @@ class RunTalk:
             f"{quantity(p.position_limit_max, unit, like=p.position_limit_min)}"
         )
         bus = options.bus
+        interface = getattr(bus.interface, "value", bus.interface)  # the CLI's string, or enum
         clock = "real time" if options.time_mode is TimeMode.REAL_TIME else "lockstep"
         lines.append(
-            f"clock: {clock}; bus: {bus.interface.value} {bus.channel or ''} at "
+            f"clock: {clock}; bus: {interface} {bus.channel or ''} at "
             f"{_bitrate(bus.bitrate)}; drive {bridge.config.drive_id}, bridge "
             f"{bridge.config.node_id}".replace("  ", " ")
         )
