@@ -47,6 +47,7 @@ from .objects import params_with_store
 from .params import BridgeParams
 from .recorder import BusLog, TraceRecorder, log_channel
 from .scaling import LOAD_INCREMENTS_PER_UNIT
+from .status import Watch
 from .store import ParameterStore
 from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
 
@@ -70,6 +71,9 @@ class RunOptions:
     time_mode: TimeMode = TimeMode.REAL_TIME
     realtime: RealTimeOptions = field(default_factory=RealTimeOptions)
     overrun_limit: int | None = DEFAULT_OVERRUN_LIMIT
+    #: called with the bridge built and the options, before its start-up (bridge.status:
+    #: the plan, the live line, the verdict's figures); None: nothing
+    watch: Watch | None = None
 
 
 @dataclass(frozen=True)
@@ -214,6 +218,8 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
         busy_poll=options.realtime.busy_poll,
     )
     _command_line_over_store(bridge, options)
+    if options.watch is not None:
+        options.watch(bridge, options)
     try:
         return _loop(bridge, options, bridge.controller.params)
     finally:

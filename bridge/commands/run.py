@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from cmdline import cli
@@ -38,6 +39,8 @@ def _move(text: str) -> Move:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..status import DEFAULT_TARGET_TOLERANCE
+
     rates = "bit/s, a CiA 301 rate (default 1000000: one axis at 1 ms is 44 %% of it)"
     cli.add_can_bus(parser, bitrate_help=rates)
     parser.add_argument(
@@ -96,14 +99,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help=f"stop the axis after N overrunning cycles in a row (default {DEFAULT_OVERRUN_LIMIT})",
     )
+    parser.add_argument(
+        "--target-tolerance",
+        type=cli.positive_float,
+        default=DEFAULT_TARGET_TOLERANCE * 1e6,
+        metavar="UM",
+        help="the verdict calls the target reached when the load ends this close to it, µm "
+        f"(µrad on a rotary axis; default {DEFAULT_TARGET_TOLERANCE * 1e6:g})",
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print the result and its verdict as one JSON document (SI units) on stdout",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from ..run import RunOptions, run_bridge
+    from ..status import RunTalk
 
     moves = list(args.move)
     if args.move_file is not None:
         moves += load_move_file(args.move_file)
+    talk = RunTalk(target_tolerance=args.target_tolerance / 1e6)
     options = RunOptions(
         bus=BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate),
         axis=regulated_axis(args.axis),
@@ -125,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
         time_mode=TimeMode(args.clock),
         realtime=realtime_options(args),
         overrun_limit=args.overrun_limit,
+        watch=talk.attach,
     )
     if not moves and args.seconds is None:
         raise cli.UsageError("give --move, --move-file or --seconds (otherwise it never ends)")
@@ -138,7 +157,13 @@ def run(args: argparse.Namespace) -> int:
             "interrupted during the start-up (the drive's supervision of the bridge, where it "
             "was configured, stops it)"
         ) from None
+    finally:
+        talk.close()
     drive = args.drive_id
+    if args.json:
+        print(json.dumps(talk.document(result), ensure_ascii=False))
+        return 0 if result.stop_message == "none" and result.stopped_safely else 1
+    print(talk.verdict(result).line())
     print(
         f"{result.cycles} cycles; state {result.state.name}; missed TPDOs "
         f"{result.missed_tpdos}, late {result.late_tpdos}, skipped SYNCs {result.skipped_syncs}"
