@@ -60,7 +60,7 @@ PDO_TOLERANCE = 50  # stored (200Ah): a busy host may hold the drive off its CPU
 BOUND_S = 900.0
 LIVE = re.compile(
     r"\rbridge run: t (?P<t>[\d.,]+) s  x (?P<x>[−\d.,]+) (?P<xu>mm|µm|nm|m)  "
-    r"e (?P<e>[−\d.,]+) (?P<eu>mm|µm|nm|m)  β [\d.,e+−-]+ rad/s  λ [\d.,]+  "
+    r"e (?P<e>[−\d.,]+) (?P<eu>mm|µm|nm|m)  β [\d.,e+−-]+ rad/s  λ [\d.,e+−-]+  "
     r"bus (?P<bus>[\d.,]+) %  missed \d+  skipped \d+  (?P<state>[A-Z_]+)\x1b\[K"
 )
 SCALE = {"m": 1.0, "mm": 1e-3, "µm": 1e-6, "nm": 1e-9}
