@@ -82,6 +82,8 @@ class EffectModel:
     effect: ClassVar[Effect]
     keys: ClassVar[tuple[str, ...]]
     description: ClassVar[str]
+    #: the effect in a column of the confusion matrix (docs/matrix-results.md)
+    short: ClassVar[str]
 
     def present(self, axis: AxisConfig) -> bool:
         """The model has the effect: one of its keys is present (0 included)."""
@@ -119,6 +121,7 @@ def _tiny(scales: DataScales) -> float:
 
 class Backlash(EffectModel):
     effect = Effect.BACKLASH
+    short = "bl"
     keys = ("mechanics.backlash",)
     description = "free play between motor and load (the motor crosses a gap at reversals)"
 
@@ -144,6 +147,7 @@ class Backlash(EffectModel):
 
 class Compliance(EffectModel):
     effect = Effect.COMPLIANCE
+    short = "cmp"
     keys = ("mechanics.antiresonance", "mechanics.damping_ratio")
     description = "an elastic transmission (motor and load positions differ with the force)"
 
@@ -184,6 +188,7 @@ class Compliance(EffectModel):
 
 class CoulombFriction(EffectModel):
     effect = Effect.COULOMB_FRICTION
+    short = "coul"
     keys = ("friction.coulomb",)
     description = "a friction torque of constant size opposing the motion"
 
@@ -197,6 +202,7 @@ class CoulombFriction(EffectModel):
 
 class ViscousFriction(EffectModel):
     effect = Effect.VISCOUS_FRICTION
+    short = "visc"
     keys = ("friction.viscous",)
     description = "a friction torque growing with speed"
 
@@ -210,6 +216,7 @@ class ViscousFriction(EffectModel):
 
 class ConstantLoadTorque(EffectModel):
     effect = Effect.CONSTANT_LOAD_TORQUE
+    short = "load"
     keys = ("disturbance.constant_torque",)
     description = (
         "a constant load torque (gravity, counterweight error) that the motor must hold even "
@@ -225,6 +232,7 @@ class ConstantLoadTorque(EffectModel):
 
 class AsymmetricFriction(EffectModel):
     effect = Effect.ASYMMETRIC_FRICTION
+    short = "asym"
     keys = ("friction.coulomb_negative", "friction.viscous_negative")
     description = "friction that differs between the two directions of motion"
 
@@ -245,6 +253,7 @@ class AsymmetricFriction(EffectModel):
 
 class StribeckFriction(EffectModel):
     effect = Effect.STRIBECK_FRICTION
+    short = "strb"
     keys = ("friction.stribeck", "friction.stribeck_speed")
     description = "extra static friction near zero speed (break-away peak)"
 
@@ -260,6 +269,7 @@ class StribeckFriction(EffectModel):
 
 class PeriodicDisturbance(EffectModel):
     effect = Effect.PERIODIC_DISTURBANCE
+    short = "per"
     keys = (
         "disturbance.periodic_amplitude",
         "disturbance.periodic_period",
@@ -281,6 +291,7 @@ class PeriodicDisturbance(EffectModel):
 
 class TorqueSaturation(EffectModel):
     effect = Effect.TORQUE_SATURATION
+    short = "sat"
     keys = ("control.torque_limit",)
     description = "a torque limit that clips the fastest accelerations"
 
@@ -290,6 +301,7 @@ class TorqueSaturation(EffectModel):
 
 class TimeDelay(EffectModel):
     effect = Effect.TIME_DELAY
+    short = "dly"
     keys = ("control.delay",)
     description = "a dead time between the speed controller and the torque"
 
@@ -299,6 +311,7 @@ class TimeDelay(EffectModel):
 
 class SensorTimeOffset(EffectModel):
     effect = Effect.SENSOR_TIME_OFFSET
+    short = "sto"
     keys = ("control.sensor_time_offset",)
     description = (
         "the load measuring system samples at another time than the motor's (positive: the "
@@ -318,6 +331,7 @@ class SensorTimeOffset(EffectModel):
 
 class SetpointDelay(EffectModel):
     effect = Effect.SETPOINT_DELAY
+    short = "spd"
     keys = ("control.setpoint_delay", "control.setpoint_delay_rate")
     description = (
         "the drive applies the speed set point late (bus, the drive's input stage), by a "
@@ -337,6 +351,7 @@ class SetpointDelay(EffectModel):
 
 class MeasurementDelay(EffectModel):
     effect = Effect.MEASUREMENT_DELAY
+    short = "msd"
     keys = ("control.measurement_delay",)
     description = "every reading the position loop and the recording see is taken late"
 
@@ -350,6 +365,7 @@ class MeasurementDelay(EffectModel):
 
 class ScaleError(EffectModel):
     effect = Effect.SCALE_ERROR
+    short = "scl"
     keys = (
         "control.scale_error_amplitude",
         "control.scale_error_period",
