@@ -63,21 +63,9 @@ from .regression import Candidate, EffectTest, Fitted, Relation, evaluate_candid
 from .replay import ReplayInput, like_recording, replay
 
 #: Effects tested through the loop (after the plant effects).
-LOOP_EFFECTS = frozenset(
-    {
-        Effect.TIME_DELAY,
-        Effect.TORQUE_SATURATION,
-        Effect.SETPOINT_DELAY,
-    }
-)
+LOOP_EFFECTS = frozenset(e for e, m in MODELS.items() if m.tested_in_loop)
 #: Effects of the table the evidence has no test for yet, and why (the report says so).
-UNTESTED = {
-    Effect.SCALE_ERROR: "no test of periodic terms in the deflection between the two measuring "
-    "systems yet",
-    Effect.MEASUREMENT_DELAY: "the loop test does not tell a late reading from a late set point "
-    "yet (on an FMU axis with a 2 ms set-point dead time, development seed 9, it scored higher "
-    "than the set point's); a trace of the set point as the drive received it decides",
-}
+UNTESTED = {e: m.untested for e, m in MODELS.items() if m.untested}
 #: A loop test whose p was below this is run again once the model changed (a plant effect
 #: named); above it the loop showed nothing and its verdict stands.
 LOOP_AGAIN_P = 0.05
