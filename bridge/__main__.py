@@ -21,6 +21,7 @@ from virtual_bus import VirtualBusError
 from virtual_bus.errors import BusUnavailableError, RealTimeRefused
 from virtual_bus.formats import FormatError
 
+from .commands.common import PROG as PROG  # the parser's name (tests build it)
 from .errors import BridgeError, DriveSetupError
 
 COMMANDS = ("run", "probe", "config", "eds", "busload", "host_latency", "freqresp", "tune")
