@@ -29,9 +29,9 @@ FAILURES = (*BRIDGE_FAILURES, cli.Failure((PlantSimError, RegulatorError)))
 
 def main(argv: Sequence[str] | None = None) -> int:
     if (code := cli.missing_extra(PROG, SIM_MODULES, "sim")) is not None:
-        return code
+        return code  # before the SDO client's logging is touched
     quiet_sdo_client_logging()
-    return cli.main(PROG, DESCRIPTION, cli.load_commands("hil", COMMANDS), argv, FAILURES)
+    return cli.run_package("hil", DESCRIPTION, COMMANDS, argv, FAILURES)
 
 
 if __name__ == "__main__":
