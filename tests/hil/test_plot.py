@@ -68,3 +68,30 @@ def test_not_a_trace_is_one_line_exit_2(tmp_path: Path, capsys) -> None:
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "time" in err
     assert not (tmp_path / "bad.png").exists()
+
+
+def test_emps_dataset_trace(tmp_path: Path) -> None:
+    """A dataset's trace (EMPS, no load_position): positions and following error against the
+    trace's own columns, the band from the axis file's k_v."""
+    from plant_sim.datasets.emps import import_emps
+    from virtual_bus.formats.axis import load_axis
+    from virtual_bus.shipped import SHARED_DIR
+
+    mat = SHARED_DIR / "data" / "emps" / "DATA_EMPS.mat"
+    if not mat.exists():
+        pytest.skip(f"EMPS data not found at {mat}")
+    import_emps([mat], tmp_path)
+    csv = tmp_path / "DATA_EMPS.csv"
+    axis_path = Path(__file__).parents[2] / "config" / "emps_nominal.toml"
+    axis = load_axis(axis_path)
+    trace = read_trace(csv)
+    cols = trace.columns
+    plots = {
+        p.ylabel: p for p in panels(trace, PlotSetup("m", axis.transmission_ratio, axis.control.kv))
+    }
+    expect = (cols["position_reference"] - cols["motor_position"] / axis.transmission_ratio) * 1e6
+    assert np.allclose(plots["following error, µm"].curves[0].values, expect)
+    assert plots["amplitude, µm"].band_hz == (axis.control.kv / 4, axis.control.kv)
+    assert "motor / k_r − load, µm" not in plots  # no load column: no empty panel
+    assert main(["plot", str(csv), "--axis", str(axis_path)]) == 0
+    assert "http" not in (tmp_path / "DATA_EMPS.html").read_text(encoding="utf-8")
