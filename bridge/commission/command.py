@@ -80,7 +80,7 @@ def _timeout(text: str) -> float:
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
-    cli.add_can_bus(parser, 500_000, "bit/s (DCF Baudrate)")
+    cli.add_can_bus(parser, bitrate_help="bit/s (DCF Baudrate; default 1000000, as run and probe)")
     parser.add_argument("--node-id", type=cli.node_id, required=True, help="the node (1..127)")
     parser.add_argument(
         "--eds", type=Path, help="EDS (or DCF) of the node; default: identified by 1000h/1018h"
