@@ -253,7 +253,10 @@ def _set(args: argparse.Namespace) -> int:
         before = access.read(var) if readable else None
         access.write(var, value)
         if readable:
-            print(f"{display(var, access.read(var))} (was {value_text(var, before)})")  # type: ignore[arg-type]
+            was = value_text(var, before)
+            if var.data_type in dt.UNSIGNED_TYPES:  # decimal first, as display() shows the new one
+                was = f"{int(before)} ({was})"  # type: ignore[arg-type]
+            print(f"{display(var, access.read(var))} (was {was})")  # type: ignore[arg-type]
         else:
             print(f"{key_text(var)} {var.name} <- {value_text(var, value)}")
     return 0

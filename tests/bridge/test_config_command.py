@@ -407,7 +407,7 @@ def test_store_commands_through_set(nodes: Nodes, capsys: pytest.CaptureFixture[
     assert code == 0 and nodes.store.is_file()
     code, out, _ = run(nodes.argv("set", 1, "1011h:01", "load"), capsys)
     assert code == 0 and not nodes.store.exists()
-    assert out == "1011h:01 Restore all default parameters = 1 (0x00000001) (was 0x00000001)\n"
+    assert out == "1011h:01 Restore all default parameters = 1 (0x00000001) (was 1 (0x00000001))\n"
 
 
 def test_the_node_is_identified_without_eds(
