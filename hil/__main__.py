@@ -19,7 +19,7 @@ from plant_sim.errors import PlantSimError
 from regulator.errors import RegulatorError
 
 PROG = "python -m hil"
-COMMANDS = ("demo", "bench", "tune", "freqresp", "sweep", "contour")
+COMMANDS = ("demo", "bench", "tune", "freqresp", "sweep", "contour", "plot")
 DESCRIPTION = (
     "Hardware in the loop without hardware: the bridge (python -m bridge) closing the loop "
     "over CANopen against the simulated CiA 402 drive (python -m plant_sim drive)."
