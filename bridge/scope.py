@@ -44,7 +44,7 @@ HISTORY_SAMPLES = 60_000
 #: How often the drain empties the ring (wall clock), s.
 DRAIN_S = 0.05
 #: The most samples one answer carries (a page that asks for more gets the newest).
-MAX_ANSWER = 20_000
+MAX_ANSWER = HISTORY_SAMPLES
 #: The columns of a sample, in order (SI; positions in load units).
 COLUMNS = (
     "seq",

@@ -9,6 +9,7 @@
   const cols = { t: [], e: [], beta: [], lam: [], wm: [], wl: [], tq: [] };
   let lastX = null, lastTx = null;
   const plots = [];
+  scope.cols = cols;
 
   function um(v) { return v === null ? null : v * 1e6; }
   function unitScale() { return meta.load_unit === "m" ? ["µm", 1e6] : ["µrad", 1e6]; }
@@ -119,6 +120,13 @@
   }
   scope.csvRows = () => cols.t.length;
 
+  const asked = new URLSearchParams(location.search).get("window");  // ?window=SECONDS
+  if (asked !== null && Number(asked) > 0) {
+    windowS = Number(asked);
+    const sel = document.getElementById("window");
+    if (![...sel.options].some((o) => o.value === asked)) sel.add(new Option(`${asked} s`, asked));
+    sel.value = asked;
+  }
   document.getElementById("window").addEventListener("change", (ev) => {
     windowS = Number(ev.target.value); trim(); redraw();
   });
