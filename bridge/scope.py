@@ -77,11 +77,16 @@ class Scope:
     stream: where the page's address is said (stderr)."""
 
     def __init__(
-        self, port: int = 0, stream: TextIO | None = None, host: str = "127.0.0.1"
+        self,
+        port: int = 0,
+        stream: TextIO | None = None,
+        host: str = "127.0.0.1",
+        command: str = "bridge run",
     ) -> None:
         if not 0 <= port <= 65535:
             raise BridgeConfigError(f"--scope {port}: a TCP port 0..65535 (0: a free one)")
         self.stream = stream if stream is not None else sys.stderr
+        self.command = command
         self.ring: deque[Sample] = deque(maxlen=RING_SAMPLES)
         self.history: deque[Sample] = deque(maxlen=HISTORY_SAMPLES)
         self.pushed = 0  # samples the loop handed over
@@ -111,9 +116,27 @@ class Scope:
 
     # --- the hooks ------------------------------------------------------------------------
     def attach(self, bridge: Bridge, options: RunOptions | None = None) -> None:
-        """With the bridge built: chain :meth:`cycle` after the hook already there (the
-        status line's), start the drain and the server, say the address."""
+        """With the bridge built (``RunOptions.watch``): :meth:`follow` it and :meth:`start`."""
+        self.follow(bridge, options)
+        self.start()
+
+    def start(self) -> None:
+        """Start the drain and the server (once), say the address."""
+        if self._drain_thread is not None:
+            return
+        self._drain_thread = threading.Thread(target=self._drain, name="bridge-scope", daemon=True)
+        self._drain_thread.start()
+        self._server_thread.start()
+        self.stream.write(f"{self.command}: scope at {self.url} (read-only)\n")
+        self.stream.flush()
+
+    def follow(self, bridge: Bridge, options: RunOptions | None = None) -> None:
+        """Chain :meth:`cycle` after the bridge's hook already there (the status line's); a
+        bridge followed before is left (``hil demo``: one bridge per run, one scope)."""
         from .cycle import BridgeState, StopReason
+
+        if self._bridge is not None and self._bridge.after_cycle in (self._chained, self.cycle):
+            self._bridge.after_cycle = self._prev_hook
 
         c = bridge.controller
         p = c.params
@@ -134,11 +157,6 @@ class Scope:
         }
         self._prev_hook = bridge.after_cycle
         bridge.after_cycle = self._chained if self._prev_hook is not None else self.cycle
-        self._drain_thread = threading.Thread(target=self._drain, name="bridge-scope", daemon=True)
-        self._drain_thread.start()
-        self._server_thread.start()
-        self.stream.write(f"bridge run: scope at {self.url} (read-only)\n")
-        self.stream.flush()
 
     def _chained(self, bridge: Bridge) -> None:
         prev = self._prev_hook

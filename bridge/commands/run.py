@@ -44,7 +44,7 @@ def _move(text: str) -> Move:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _port(text: str) -> int:
+def port(text: str) -> int:
     try:
         port = int(text)
     except ValueError:
@@ -125,7 +125,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--scope",
-        type=_port,
+        type=port,
         nargs="?",
         const=0,
         metavar="PORT",

@@ -54,6 +54,10 @@
     const [, f] = unitScale();
     for (let i = 0; i < n; i++) {
       const t = s.t_s[i], x = s.load_position[i];
+      if (lastTx !== null && t < lastTx) {  // a new run (hil demo --scope): start afresh
+        for (const k in cols) cols[k].length = 0;
+        lastX = null;
+      }
       let wl = null;
       if (lastX !== null && x !== null && t > lastTx) wl = (x - lastX) / (t - lastTx) * kr;
       lastX = x; lastTx = t;
