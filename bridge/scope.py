@@ -58,6 +58,10 @@ COLUMNS = (
     "state",
     "stop",
 )
+#: The interpreter's thread switch interval while the scope runs, s: the scope's threads share
+#: the GIL with the loop; a loop thread that wakes while one of them runs Python gets the GIL
+#: back within this (CPython's default, 5 ms, is five 1 ms cycles).
+SWITCH_INTERVAL_S = 2e-4
 #: The page's files: name -> content type.
 FILES = {
     "index.html": "text/html; charset=utf-8",
@@ -100,6 +104,7 @@ class Scope:
         self._prev_hook: Callable[[Bridge], None] | None = None
         self._bridge: Bridge | None = None
         self._drain_thread: threading.Thread | None = None
+        self._switch_s: float | None = None
         try:
             self.server = ThreadingHTTPServer((host, port), _handler(self))
         except OSError as exc:
@@ -124,6 +129,8 @@ class Scope:
         """Start the drain and the server (once), say the address."""
         if self._drain_thread is not None:
             return
+        self._switch_s = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_s, SWITCH_INTERVAL_S))
         self._drain_thread = threading.Thread(target=self._drain, name="bridge-scope", daemon=True)
         self._drain_thread.start()
         self._server_thread.start()
@@ -193,6 +200,9 @@ class Scope:
         if self._server_thread.is_alive():
             self.server.shutdown()
         self.server.server_close()
+        if self._switch_s is not None:
+            sys.setswitchinterval(self._switch_s)
+            self._switch_s = None
 
     # --- the drain --------------------------------------------------------------------------
     def _drain(self) -> None:
