@@ -14,7 +14,7 @@ simulation with the same one-cycle PDO delay.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
@@ -23,6 +23,7 @@ import numpy as np
 
 from bridge.cycle import BridgeState
 from bridge.errors import BridgeError
+from bridge.node import Bridge
 from bridge.params import BridgeParams
 from cmdline.progress import Progress, silent
 from cmdline.quantity import percent, quantity, resolved
@@ -111,8 +112,10 @@ def bus_runs(
     prefix: str = "",
     progress: Progress | None = None,
     label: str = "",
+    watch: Callable[[Bridge], None] | None = None,
 ) -> tuple[dict[str, Trace], dict[str, object]]:
-    """Both runs of section X over the bus; traces and per-run bridge figures."""
+    """Both runs of section X over the bus; traces and per-run bridge figures. ``watch``:
+    called with each run's bridge (the live scope)."""
     progress = progress or silent()
     traces: dict[str, Trace] = {}
     info: dict[str, object] = {}
@@ -135,6 +138,7 @@ def bus_runs(
                 trace_path=out_dir / f"{prefix}{name}.csv",
                 bus_log_path=out_dir / f"{prefix}bus_{name}.log",
                 plant=plant,
+                watch=watch,
             )
         finally:
             plant.close()
@@ -211,11 +215,12 @@ def run_demo(
     interface: Interface = Interface.VIRTUAL,
     progress: Progress | None = None,
     source: AxisSource | None = None,
+    watch: Callable[[Bridge], None] | None = None,
 ) -> dict[str, object]:
     """Everything ``python -m hil demo`` does; returns summary.json's content (its
     "files" lists every file written). ``source``: the plant (default: the compiled kernel
     of ``axis``; an FMU). An axis the bridge or the physics cannot run is refused before
-    ``out_dir`` is made."""
+    ``out_dir`` is made. ``watch``: called with each bus run's bridge (``--scope``)."""
     source = source or AxisSource(axis, axis_name)
     reg = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
     BridgeParams.for_axis(axis, reg)  # the bridge's scaling limits
@@ -230,7 +235,14 @@ def run_demo(
     progress.stage(warm_up(axis, kernel=source.model is None).sentence())
     scenario = SectionX()
     runs, info = bus_runs(
-        source, axis, out_dir, scenario, interface, progress=progress, label="axis as given: "
+        source,
+        axis,
+        out_dir,
+        scenario,
+        interface,
+        progress=progress,
+        label="axis as given: ",
+        watch=watch,
     )
     extra: dict[str, object] = {
         "axis_file": axis_name,
@@ -267,7 +279,7 @@ def run_demo(
         extra["files_written"] = [*more.get("files_written", []), *as_given_files, *logs]  # type: ignore[misc]
         progress.stage(f"the axis as given shows no limit cycle: both runs again, {why}")
         runs, variant_info = bus_runs(
-            source, axis, out_dir, scenario, interface, progress=progress, label=label
+            source, axis, out_dir, scenario, interface, progress=progress, label=label, watch=watch
         )
         extra["bridge"] = {
             "bus": interface.value,

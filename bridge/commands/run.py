@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cmdline import cli
 from virtual_bus import BusConfig
@@ -18,6 +19,11 @@ from ..master import DriveSetup
 from ..node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
 from ..timing import TimeMode
 from .common import add_clock_argument, default_store_path, regulated_axis
+
+if TYPE_CHECKING:
+    from ..node import Bridge
+    from ..run import RunOptions
+    from ..status import Watch
 
 NAME = "run"
 HELP = "run the bridge against a drive on a CAN interface (real time)"
@@ -36,6 +42,16 @@ def _move(text: str) -> Move:
         return parse_move(text)
     except BridgeError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def port(text: str) -> int:
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: a TCP port 0..65535 (0: a free one)")
+    return port
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -108,20 +124,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         f"(µrad on a rotary axis; default {DEFAULT_TARGET_TOLERANCE * 1e6:g})",
     )
     parser.add_argument(
+        "--scope",
+        type=port,
+        nargs="?",
+        const=0,
+        metavar="PORT",
+        help="serve a live scope on http://127.0.0.1:PORT/ (read-only; no PORT: a free one, "
+        "its address on stderr; docs/scope.md)",
+    )
+    parser.add_argument(
         "--json",
         action="store_true",
         help="print the result and its verdict as one JSON document (SI units) on stdout",
     )
 
 
+def _both(first: Watch, second: Watch) -> Watch:
+    def watch(bridge: Bridge, options: RunOptions) -> None:
+        first(bridge, options)
+        second(bridge, options)
+
+    return watch
+
+
 def run(args: argparse.Namespace) -> int:
     from ..run import RunOptions, run_bridge
+    from ..scope import Scope
     from ..status import RunTalk
 
     moves = list(args.move)
     if args.move_file is not None:
         moves += load_move_file(args.move_file)
     talk = RunTalk(target_tolerance=args.target_tolerance / 1e6)
+    scope = None if args.scope is None else Scope(args.scope, stream=talk.stream)
+    watch = talk.attach if scope is None else _both(talk.attach, scope.attach)
     options = RunOptions(
         bus=BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate),
         axis=regulated_axis(args.axis),
@@ -143,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
         time_mode=TimeMode(args.clock),
         realtime=realtime_options(args),
         overrun_limit=args.overrun_limit,
-        watch=talk.attach,
+        watch=watch,
     )
     if not moves and args.seconds is None:
         raise cli.UsageError("give --move, --move-file or --seconds (otherwise it never ends)")
@@ -159,6 +195,8 @@ def run(args: argparse.Namespace) -> int:
         ) from None
     finally:
         talk.close()
+        if scope is not None:
+            scope.close()
     drive = args.drive_id
     if args.json:
         print(json.dumps(talk.document(result), ensure_ascii=False))

@@ -25,6 +25,17 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from bridge.commands.run import port
+
+    parser.add_argument(
+        "--scope",
+        type=port,
+        nargs="?",
+        const=0,
+        metavar="PORT",
+        help="serve the live scope of each bus run on http://127.0.0.1:PORT/ while the demo "
+        "runs (read-only; no PORT: a free one; docs/scope.md)",
+    )
     parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
     parser.add_argument(
         "--axis",
@@ -52,6 +63,24 @@ def run(args: argparse.Namespace) -> int:
     source = simulated_source(args, args.axis)
     interface = Interface.VIRTUAL if args.bus == "virtual" else Interface.SOCKETCAN
     progress = Progress(f"hil {NAME}", quiet=args.quiet)
-    summary = run_demo(args.out, source.axis, source.name, interface, progress, source)
+    scope = None
+    if args.scope is not None:
+        from bridge.scope import Scope
+
+        scope = Scope(args.scope, command="hil demo")
+        scope.start()
+    try:
+        summary = run_demo(
+            args.out,
+            source.axis,
+            source.name,
+            interface,
+            progress,
+            source,
+            watch=None if scope is None else scope.follow,
+        )
+    finally:
+        if scope is not None:
+            scope.close()
     print_summary(summary, args.out, as_json=args.json)
     return 0

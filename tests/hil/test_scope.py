@@ -1,0 +1,194 @@
+"""``bridge run --scope`` (issue 31 item 1, bridge.scope): the live scope's page in headless
+Chromium against the simulated drive, two processes over udp_multicast in a private network
+namespace the test creates (the drive: ``python -m plant_sim drive``, real-time clock; the
+bridge: ``bridge run --scope``, real time). The browser runs in the same namespace (the page
+is served on its loopback).
+
+* the page loads with no console error, no failed request and nothing fetched from outside
+  the scope's own server (uPlot is served by the bridge);
+* the plotted data moves: the page's sample count and last time grow between two reads, each
+  read a wait for a state (``scope.waitForSamples``), bounded only by the browser's backstop;
+* the following error the page received while the axis moved at constant feed is eq. 7's
+  v / k_v (the simulated drive is the independent part);
+* pause freezes what is shown while the polls go on; the CSV export holds what is shown;
+* read-only: GET and HEAD answer, every other method gets 405 (asked from a second client in
+  the namespace, urllib), and the run ends as it would without the scope (SIGINT: exit 0,
+  stopped at standstill).
+
+A screenshot of the page goes to docs/scope.png when ``SCOPE_SCREENSHOT`` names a path.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.chromium import chromium_problem, open_page, write_screenshot
+from tests.command_line import next_line
+from tests.paths import ROOT
+from virtual_bus.formats.axis import dump_axis, load_axis
+from virtual_bus.netns import UDP_GROUP, NetworkNamespace
+
+PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
+CYCLE_S = 0.0025  # a real-time loop a busy 2-core machine keeps (test_run_talks alike)
+TARGET_M = 0.03
+FEED_M_S = 0.005  # 6 s of motion at constant feed: e = v / k_v (eq. 7) while it moves
+KV_PER_S = 25.0  # the paper axis's k_v
+BOUND_S = 900.0  # backstop of a wait for a program's state
+#: stored (200Ah): a busy host may hold the drive off its CPU a few cycles (test_run_talks)
+PDO_TOLERANCE = 50
+
+METHODS = """
+import json, sys, urllib.error, urllib.request
+base = sys.argv[1]
+out = {}
+for method in ("GET", "HEAD", "POST", "PUT", "DELETE", "PATCH", "OPTIONS", "FOO"):
+    for path in ("", "data?after=0", "meta"):
+        req = urllib.request.Request(base + path, method=method, data=b"x" if method in
+                                     ("POST", "PUT", "PATCH") else None)
+        try:
+            with urllib.request.urlopen(req) as r:
+                out[f"{method} /{path}"] = r.status
+        except urllib.error.HTTPError as e:
+            out[f"{method} /{path}"] = e.code
+print(json.dumps(out))
+"""
+
+
+@pytest.fixture(scope="module")
+def axis_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    axis = tmp_path_factory.mktemp("scope") / "axis.toml"
+    paper = load_axis(PAPER_AXIS).with_values({"control.position_cycle": CYCLE_S})
+    axis.write_text(dump_axis(paper, "paper axis, 2.5 ms position cycle"))
+    return axis
+
+
+@pytest.fixture(scope="module")
+def udp_drive(netns_skip_reason: str | None, axis_file: Path) -> Iterator[NetworkNamespace]:
+    if netns_skip_reason is not None:
+        pytest.skip(netns_skip_reason)
+    if chromium_problem() is not None:
+        pytest.skip(chromium_problem())
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    with NetworkNamespace.create() as ns:
+        argv = [sys.executable, "-m", "plant_sim", "drive", "--interface", "udp_multicast"]
+        drive = ns.popen([*argv, "--axis", str(axis_file)], env=env)
+        try:
+            line = next_line(drive, BOUND_S)
+            assert line.startswith("drive 2: boot-up sent"), (line, drive.poll())
+            yield ns
+        finally:
+            drive.send_signal(signal.SIGTERM)
+            drive.communicate(timeout=60)
+
+
+def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
+    udp_drive: NetworkNamespace, axis_file: Path, tmp_path: Path
+) -> None:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    store = tmp_path / "store.json"
+    objects = {"200Ah:00": f"{PDO_TOLERANCE:02x}"}
+    doc = {"format": "backlash-bridge parameter store", "version": 1, "objects": objects}
+    store.write_text(json.dumps(doc))
+    argv = [
+        *(sys.executable, "-m", "bridge", "run", "--interface", "udp_multicast"),
+        *("--channel", UDP_GROUP, "--axis", str(axis_file), "--clock", "realtime"),
+        *("--store", str(store), "--overrun-limit", "1000000"),
+        *("--move", f"target={TARGET_M},feed={FEED_M_S}", "--hold", "600", "--scope"),
+    ]
+    proc = subprocess.Popen(
+        udp_drive.command(argv),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    assert proc.stderr is not None
+    try:
+        seen = []
+        while True:  # the address, said before the drive is configured
+            line = proc.stderr.readline()
+            seen.append(line)
+            assert line, ("bridge run ended before its scope line", seen, proc.wait())
+            if line.startswith("bridge run: scope at "):
+                url = line.split()[4]
+                break
+        assert url.startswith("http://127.0.0.1:") and url.endswith("/"), url
+        first = "scope.waitForSamples(100).then(() => [scope.samples, scope.lastT])"
+        # the move done (0.5 s of enabling at most, 6 s of motion): the largest following
+        # error shown is that of the constant feed
+        moving = (
+            f"new Promise(r => (function w() {{ if (scope.lastT > {TARGET_M / FEED_M_S + 2}) "
+            "r(); else setTimeout(w, 50); })()).then(() => [scope.samples, scope.lastT, "
+            "Math.max(...scope.cols.e.filter(x => x !== null))])"
+        )
+        errors = "[scope.dropped, scope.pushed]"
+        fe = "document.querySelectorAll('.uplot').length"
+        pause = (
+            "(() => { document.getElementById('pause').click(); const n = scope.samples; "
+            "const k = scope.polls; return new Promise(r => (function w() { "
+            "if (scope.polls > k + 3) r([n, scope.samples]); else setTimeout(w, 50); })()); })()"
+        )
+        resume = (
+            "(() => { document.getElementById('pause').click(); "
+            "document.getElementById('export').click(); return [scope.lastExport, "
+            "scope.csvRows()]; })()"
+        )
+        state = "document.getElementById('state').textContent"
+        try:
+            page = open_page(
+                url + "?window=60",
+                [first, moving, errors, fe, pause, resume, state],
+                width=1280,
+                height=760,
+                prefix=udp_drive.command([]),
+            )
+        except Exception as exc:
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=BOUND_S)
+            raise AssertionError(f"{exc}\nbridge run: {out}\n{''.join(seen)}{err}") from exc
+        methods = subprocess.run(
+            udp_drive.command([sys.executable, "-c", METHODS, url]),
+            capture_output=True,
+            text=True,
+            timeout=BOUND_S,
+            env=env,
+        )
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)  # the run ends as any run does
+        out, err = proc.communicate(timeout=BOUND_S)
+    shot = os.environ.get("SCOPE_SCREENSHOT")
+    if shot:
+        write_screenshot(page, shot)
+    v = page.values
+    assert page.errors == [], page.errors
+    assert page.external_requests(allowed=(url,)) == [], page.requests
+    assert any(r.endswith("uPlot.iife.min.js") for r in page.requests)
+    n1, t1 = v[first]
+    n2, t2, e_max_um = v[moving]
+    assert n2 > n1 > 100 and t2 > t1, (v[first], v[moving])  # the data moves
+    # eq. 7 at constant feed: e = v / k_v, within 20 % (a real-time loop on a busy host)
+    assert e_max_um == pytest.approx(FEED_M_S / KV_PER_S * 1e6, rel=0.2)
+    dropped, pushed = v[errors]
+    assert pushed >= n2 and 0 <= dropped < pushed
+    assert v[fe] == 4  # following error, β/λ, speeds, torque
+    paused_at, after_polls = v[pause]
+    assert after_polls == paused_at  # paused: nothing new shown while the polls go on
+    exported, shown = v[resume]
+    assert exported == shown > 0
+    assert v[state] == "RUNNING"
+    assert methods.returncode == 0, methods.stderr
+    codes = json.loads(methods.stdout)
+    for key, code in codes.items():
+        method = key.split()[0]
+        assert code == (200 if method in ("GET", "HEAD") else 405), (key, code)
+    assert proc.returncode == 0, (out, err)
+    assert "SIGINT" in out or "interrupted" in out, out
