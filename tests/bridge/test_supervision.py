@@ -223,6 +223,10 @@ def bridge(served: tuple[str, threading.Event, list]) -> Iterator[Bridge]:
     # lockstep, waiting 10 ms for a missing TPDO (not 250): a PDO loss comes within the
     # drive's consumer time of the bridge's heartbeat, which is once a cycle
     b = Bridge(bus, BridgeParams.for_axis(AXIS), AXIS.kind, LockstepPacer(0.001, wait_s=0.01))
+    # a 4 s heartbeat (the drive watches it within 10 s): these tests provoke the stop paths;
+    # with 100 ms, a host that starves this lockstep bridge for 250 ms (seen with both CPUs
+    # busy) lets the drive's consumer stop the axis first (EMCY 8130h), a path of its own test
+    b.nmt.set_period_ms(4000)
     try:
         b.start()
         b.controller.queue_move(Move(0.05, 0.02))
