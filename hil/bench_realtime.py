@@ -276,11 +276,18 @@ def _measure(
     before: dict[str, object] = {}
     if host is not None:
         print(f"bench: cyclictest first, {cycles / rate_hz:g} s (the host's floor in this run)")
-        before = host_latency_now(host, rate_hz, cycles / rate_hz, pacer.spin_s + pacer.late_s)
+        # the bridge serves its heartbeat meanwhile, as between runs: the drive watches it
+        # (1016h, 250 ms) and would otherwise stop the axis (EMCY 8130h) while cyclictest
+        # runs, and the loop would be timed in STOPPED
+        with bridge.serving():
+            before = host_latency_now(host, rate_hz, cycles / rate_hz, pacer.spin_s + pacer.late_s)
     applied = apply_realtime(rt)
     for line in applied:
         print(f"bench: {line}")
-    floor = host_floor() if host is None else {}  # cyclictest measured the host instead
+    floor: dict[str, float] = {}
+    if host is None:  # else cyclictest measured the host
+        with bridge.serving():  # its heartbeat goes on meanwhile (above)
+            floor = host_floor()
     steal0 = host_steal_s()
     wall0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
     n = bridge.run(until=lambda b: b.cycle_index >= cycles)
