@@ -274,19 +274,19 @@ def _measure(
     pacer = bridge.pacer
     rate_hz = 1.0 / pacer.cycle_s
     before: dict[str, object] = {}
-    if host is not None:
-        print(f"bench: cyclictest first, {cycles / rate_hz:g} s (the host's floor in this run)")
-        # the bridge serves its heartbeat meanwhile, as between runs: the drive watches it
-        # (1016h, 250 ms) and would otherwise stop the axis (EMCY 8130h) while cyclictest
-        # runs, and the loop would be timed in STOPPED
-        with bridge.serving():
-            before = host_latency_now(host, rate_hz, cycles / rate_hz, pacer.spin_s + pacer.late_s)
-    applied = apply_realtime(rt)
-    for line in applied:
-        print(f"bench: {line}")
     floor: dict[str, float] = {}
-    if host is None:  # else cyclictest measured the host
-        with bridge.serving():  # its heartbeat goes on meanwhile (above)
+    # the bridge serves its heartbeat until its loop starts, as between runs: the drive
+    # watches it (1016h, 250 ms) and would otherwise stop the axis (EMCY 8130h) while
+    # cyclictest runs or the real-time options are applied (locking the memory takes longer
+    # than 250 ms), and the loop would be timed in STOPPED
+    with bridge.serving():
+        if host is not None:
+            print(f"bench: cyclictest first, {cycles / rate_hz:g} s (the host's floor in this run)")
+            before = host_latency_now(host, rate_hz, cycles / rate_hz, pacer.spin_s + pacer.late_s)
+        applied = apply_realtime(rt)
+        for line in applied:
+            print(f"bench: {line}")
+        if host is None:  # else cyclictest measured the host
             floor = host_floor()
     steal0 = host_steal_s()
     wall0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
