@@ -13,7 +13,6 @@ import configparser
 import struct
 import threading
 import uuid
-from collections.abc import Iterator
 from pathlib import Path
 
 import can
@@ -21,8 +20,6 @@ import canopen
 import pytest
 
 from bridge.__main__ import main
-from plant_sim.drive import DriveConfig, TimeMode
-from plant_sim.drive.process import DriveProcessConfig, serve
 from tests.adapt_helpers import (
     FAULHABER_CF_EDS,
     FAULHABER_CO_EDS,
@@ -31,13 +28,8 @@ from tests.adapt_helpers import (
     mirror_mode,
     require_eds,
 )
-from tests.bridge_helpers import AXIS
+from tests.bridge.conftest import BOUND_S, SIM_EDS
 from tests.command_line import exit_status
-from tests.paths import ROOT
-
-SIM_EDS = ROOT / "config" / "drive.eds"
-#: Backstop of the waits below (a thread that hangs; never reached when all is well).
-BOUND_S = 120.0
 
 
 def entry(node_id: int, time_ms: int) -> int:
@@ -157,40 +149,13 @@ def test_dcf_without_eds_is_refused(tmp_path: Path, capsys: Capture) -> None:
 
 
 # --- the DCF alone makes the drive watch the bridge -----------------------------------------
-@pytest.fixture
-def served() -> Iterator[tuple[str, list]]:
-    """The simulated drive served with the real-time clock in a thread on a fresh virtual
-    channel; yields the channel and the drive (once booted)."""
-    channel = f"dcf-{uuid.uuid4().hex[:10]}"
-    bus = can.Bus(interface="virtual", channel=channel)
-    stop, booted = threading.Event(), threading.Event()
-    drives: list = []
-    errors: list[BaseException] = []
-
-    def body() -> None:
-        config = DriveProcessConfig(AXIS, drive=DriveConfig(time_mode=TimeMode.REAL_TIME))
-        try:
-            serve(config, bus, stop, ready=lambda d: (drives.append(d), booted.set()))
-        except BaseException as exc:
-            errors.append(exc)
-            booted.set()
-
-    thread = threading.Thread(target=body, name="drive")
-    thread.start()
-    try:
-        assert booted.wait(BOUND_S) and not errors, errors
-        yield channel, drives
-    finally:
-        stop.set()
-        thread.join(BOUND_S)
-        bus.shutdown()
-    assert not errors, errors
-
-
 def test_the_drive_loaded_with_the_dcf_watches_the_bridge(
-    served: tuple[str, list], tmp_path: Path, capsys: Capture
+    served: tuple[str, threading.Event, list],
+    tool: canopen.RemoteNode,
+    tmp_path: Path,
+    capsys: Capture,
 ) -> None:
-    channel, drives = served
+    channel, _, drives = served
     drive = drives[0]
     dcf = tmp_path / "drive.dcf"
     probe_with_dcf(SIM_EDS, dcf, capsys)  # the values a LocalNode of the same EDS led to
@@ -199,20 +164,12 @@ def test_the_drive_loaded_with_the_dcf_watches_the_bridge(
     out, err = capsys.readouterr()
     assert code == 0, err
     assert "loaded 2 objects" in out and "(1 already equal)" in out  # 6007h = 3 by default
-    network = canopen.Network()
-    network.NOTIFIER_CYCLE = 0.02
-    network.connect(interface="virtual", channel=channel)
-    try:
-        tool = network.add_node(2, str(SIM_EDS))
-        tool.sdo.RESPONSE_TIMEOUT = BOUND_S
-        assert tool.sdo.upload(0x1016, 1) == struct.pack("<I", entry(1, 250))
-        assert drive.error_code == 0
-        # the bridge's heartbeat once (Operational), then never again: the bridge died
-        network.bus.send(can.Message(arbitration_id=0x701, data=[0x05], is_extended_id=False))
-        for _ in range(int(BOUND_S * 10)):  # the drive's heartbeats: its clock goes on
-            if drive.error_code == 0x8130:
-                break
-            tool.nmt.wait_for_heartbeat(timeout=1.0)
-        assert drive.error_code == 0x8130  # heartbeat of the master lost (CiA 301)
-    finally:
-        network.disconnect()
+    assert tool.sdo.upload(0x1016, 1) == struct.pack("<I", entry(1, 250))
+    assert drive.error_code == 0
+    # the bridge's heartbeat once (Operational), then never again: the bridge died
+    tool.network.bus.send(can.Message(arbitration_id=0x701, data=[0x05], is_extended_id=False))
+    for _ in range(int(BOUND_S * 10)):  # the drive's heartbeats: its clock goes on
+        if drive.error_code == 0x8130:
+            break
+        tool.nmt.wait_for_heartbeat(timeout=1.0)
+    assert drive.error_code == 0x8130  # heartbeat of the master lost (CiA 301)
