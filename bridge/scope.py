@@ -18,6 +18,7 @@ method gets 405 and nothing reaches the bridge. The plots are drawn by uPlot (MI
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import json
 import math
@@ -32,6 +33,31 @@ from typing import TYPE_CHECKING, Any, TextIO
 from urllib.parse import parse_qs, urlsplit
 
 from .errors import BridgeConfigError
+
+
+def port(text: str) -> int:
+    """A ``--scope`` port: a TCP port, 0 for a free one."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: a TCP port 0..65535 (0: a free one)")
+    return port
+
+
+def add_scope_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--scope [PORT]`` of a command whose live scope serves ``what``."""
+    parser.add_argument(
+        "--scope",
+        type=port,
+        nargs="?",
+        const=0,
+        metavar="PORT",
+        help=f"serve {what} on http://127.0.0.1:PORT/ (read-only; no PORT: a free one, its "
+        "address on stderr; docs/scope.md)",
+    )
+
 
 if TYPE_CHECKING:
     from .node import Bridge

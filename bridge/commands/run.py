@@ -44,17 +44,8 @@ def _move(text: str) -> Move:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def port(text: str) -> int:
-    try:
-        port = int(text)
-    except ValueError:
-        port = -1
-    if not 0 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r}: a TCP port 0..65535 (0: a free one)")
-    return port
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..scope import add_scope_argument
     from ..status import DEFAULT_TARGET_TOLERANCE
 
     rates = "bit/s, a CiA 301 rate (default 1000000: one axis at 1 ms is 44 %% of it)"
@@ -123,15 +114,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the verdict calls the target reached when the load ends this close to it, µm "
         f"(µrad on a rotary axis; default {DEFAULT_TARGET_TOLERANCE * 1e6:g})",
     )
-    parser.add_argument(
-        "--scope",
-        type=port,
-        nargs="?",
-        const=0,
-        metavar="PORT",
-        help="serve a live scope on http://127.0.0.1:PORT/ (read-only; no PORT: a free one, "
-        "its address on stderr; docs/scope.md)",
-    )
+    add_scope_argument(parser, "a live scope of the run")
     parser.add_argument(
         "--json",
         action="store_true",

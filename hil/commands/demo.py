@@ -25,17 +25,9 @@ DESCRIPTION = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from bridge.commands.run import port
+    from bridge.scope import add_scope_argument
 
-    parser.add_argument(
-        "--scope",
-        type=port,
-        nargs="?",
-        const=0,
-        metavar="PORT",
-        help="serve the live scope of each bus run on http://127.0.0.1:PORT/ while the demo "
-        "runs (read-only; no PORT: a free one; docs/scope.md)",
-    )
+    add_scope_argument(parser, "the live scope of each bus run while the demo runs")
     parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
     parser.add_argument(
         "--axis",
