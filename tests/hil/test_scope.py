@@ -22,14 +22,17 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
+from tests.chromium import PageCheck as Page
 from tests.chromium import chromium_problem, open_page, write_screenshot
 from tests.command_line import next_line
 from tests.paths import ROOT
@@ -89,9 +92,63 @@ def udp_drive(netns_skip_reason: str | None, axis_file: Path) -> Iterator[Networ
             drive.communicate(timeout=60)
 
 
-def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
-    udp_drive: NetworkNamespace, axis_file: Path, tmp_path: Path
-) -> None:
+# --- what the test asks the page (JavaScript, evaluated in order) ---
+FIRST = "scope.waitForSamples(100).then(() => [scope.samples, scope.lastT])"
+#: the move done (0.5 s of enabling at most, 6 s of motion): the largest following
+#: error shown is that of the constant feed
+MOVING = (
+    f"new Promise(r => (function w() {{ if (scope.lastT > {TARGET_M / FEED_M_S + 2}) "
+    "r(); else setTimeout(w, 50); })()).then(() => [scope.samples, scope.lastT, "
+    "Math.max(...scope.cols.e.filter(x => x !== null))])"
+)
+ERRORS = "[scope.dropped, scope.pushed]"
+FE = "document.querySelectorAll('.uplot').length"
+PAUSE = (
+    "(() => { document.getElementById('pause').click(); const n = scope.samples; "
+    "const k = scope.polls; return new Promise(r => (function w() { "
+    "if (scope.polls > k + 3) r([n, scope.samples]); else setTimeout(w, 50); })()); })()"
+)
+RESUME = (
+    "(() => { document.getElementById('pause').click(); "
+    "document.getElementById('export').click(); return [scope.lastExport, "
+    "scope.csvRows()]; })()"
+)
+STATE = "document.getElementById('state').textContent"
+
+#: Attempts of a run a starved host may spoil (tests/fail_safe.py's ATTEMPTS alike).
+ATTEMPTS = 3
+#: Skipped SYNCs that say the host starved the bridge for 125 ms at 2.5 ms (half the drive's
+#: heartbeat consumer time): the page then shows a stall, not the loop (tests/fail_safe.py).
+STARVED_SYNCS = 50
+
+
+@dataclass
+class Run:
+    """One ``bridge run --scope`` with the page read in Chromium: what both said."""
+
+    url: str
+    page: Page | None  # None: the page's waits failed (``problem`` says how)
+    problem: str
+    methods: subprocess.CompletedProcess[str] | None
+    out: str
+    err: str
+    code: int
+
+
+def spoiled(run: Run) -> str | None:
+    """Why this run says nothing of the scope, or None: the host starved the bridge (its
+    skipped SYNCs) or the drive stopped the axis because the bridge's heartbeat ran out
+    (EMCY 8130h: the drive's supervision doing its job, issue 28), ending the run."""
+    skipped = re.search(r"skipped SYNCs (\d+)", run.out)
+    if skipped and int(skipped.group(1)) >= STARVED_SYNCS:
+        return f"the host starved the bridge: {skipped.group(1)} skipped SYNCs"
+    stopped = re.search(r"^stopped: (.*)$", run.out, re.M)
+    if stopped and ("DRIVE_EMCY" in stopped.group(1) or "8130" in stopped.group(1)):
+        return f"the drive stopped the axis first: {stopped.group(1)}"
+    return None
+
+
+def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     store = tmp_path / "store.json"
     objects = {"200Ah:00": f"{PDO_TOLERANCE:02x}"}
@@ -104,7 +161,7 @@ def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
         *("--move", f"target={TARGET_M},feed={FEED_M_S}", "--hold", "600", "--scope"),
     ]
     proc = subprocess.Popen(
-        udp_drive.command(argv),
+        ns.command(argv),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -121,50 +178,49 @@ def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
                 url = line.split()[4]
                 break
         assert url.startswith("http://127.0.0.1:") and url.endswith("/"), url
-        first = "scope.waitForSamples(100).then(() => [scope.samples, scope.lastT])"
-        # the move done (0.5 s of enabling at most, 6 s of motion): the largest following
-        # error shown is that of the constant feed
-        moving = (
-            f"new Promise(r => (function w() {{ if (scope.lastT > {TARGET_M / FEED_M_S + 2}) "
-            "r(); else setTimeout(w, 50); })()).then(() => [scope.samples, scope.lastT, "
-            "Math.max(...scope.cols.e.filter(x => x !== null))])"
-        )
-        errors = "[scope.dropped, scope.pushed]"
-        fe = "document.querySelectorAll('.uplot').length"
-        pause = (
-            "(() => { document.getElementById('pause').click(); const n = scope.samples; "
-            "const k = scope.polls; return new Promise(r => (function w() { "
-            "if (scope.polls > k + 3) r([n, scope.samples]); else setTimeout(w, 50); })()); })()"
-        )
-        resume = (
-            "(() => { document.getElementById('pause').click(); "
-            "document.getElementById('export').click(); return [scope.lastExport, "
-            "scope.csvRows()]; })()"
-        )
-        state = "document.getElementById('state').textContent"
+        page, problem, methods = None, "", None
         try:
             page = open_page(
                 url + "?window=60",
-                [first, moving, errors, fe, pause, resume, state],
+                [FIRST, MOVING, ERRORS, FE, PAUSE, RESUME, STATE],
                 width=1280,
                 height=760,
-                prefix=udp_drive.command([]),
+                prefix=ns.command([]),
             )
-        except Exception as exc:
-            proc.send_signal(signal.SIGINT)
-            out, err = proc.communicate(timeout=BOUND_S)
-            raise AssertionError(f"{exc}\nbridge run: {out}\n{''.join(seen)}{err}") from exc
-        methods = subprocess.run(
-            udp_drive.command([sys.executable, "-c", METHODS, url]),
-            capture_output=True,
-            text=True,
-            timeout=BOUND_S,
-            env=env,
-        )
+        except Exception as exc:  # the waits failed: said with what the bridge said
+            problem = repr(exc)
+        else:
+            methods = subprocess.run(
+                ns.command([sys.executable, "-c", METHODS, url]),
+                capture_output=True,
+                text=True,
+                timeout=BOUND_S,
+                env=env,
+            )
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)  # the run ends as any run does
         out, err = proc.communicate(timeout=BOUND_S)
+    return Run(url, page, problem, methods, out, "".join(seen) + err, proc.returncode)
+
+
+def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
+    udp_drive: NetworkNamespace, axis_file: Path, tmp_path: Path
+) -> None:
+    tries = []
+    for attempt in range(ATTEMPTS):
+        (tmp_path / str(attempt)).mkdir()
+        run = scope_run(udp_drive, axis_file, tmp_path / str(attempt))
+        why = spoiled(run)
+        if why is None:
+            break
+        tries.append(why)
+        print(f"scope: run again, {why}")
+    else:
+        raise AssertionError(f"every attempt spoiled by the host: {tries}")
+    assert run.page is not None, f"{run.problem}\nbridge run: {run.out}\n{run.err}"
+    page, methods, url, out, err = run.page, run.methods, run.url, run.out, run.err
+    assert methods is not None
     shot = os.environ.get("SCOPE_SCREENSHOT")
     if shot:
         write_screenshot(page, shot)
@@ -172,23 +228,23 @@ def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
     assert page.errors == [], page.errors
     assert page.external_requests(allowed=(url,)) == [], page.requests
     assert any(r.endswith("uPlot.iife.min.js") for r in page.requests)
-    n1, t1 = v[first]
-    n2, t2, e_max_um = v[moving]
-    assert n2 > n1 > 100 and t2 > t1, (v[first], v[moving])  # the data moves
+    n1, t1 = v[FIRST]
+    n2, t2, e_max_um = v[MOVING]
+    assert n2 > n1 > 100 and t2 > t1, (v[FIRST], v[MOVING])  # the data moves
     # eq. 7 at constant feed: e = v / k_v, within 20 % (a real-time loop on a busy host)
     assert e_max_um == pytest.approx(FEED_M_S / KV_PER_S * 1e6, rel=0.2)
-    dropped, pushed = v[errors]
+    dropped, pushed = v[ERRORS]
     assert pushed >= n2 and 0 <= dropped < pushed
-    assert v[fe] == 4  # following error, β/λ, speeds, torque
-    paused_at, after_polls = v[pause]
+    assert v[FE] == 4  # following error, β/λ, speeds, torque
+    paused_at, after_polls = v[PAUSE]
     assert after_polls == paused_at  # paused: nothing new shown while the polls go on
-    exported, shown = v[resume]
+    exported, shown = v[RESUME]
     assert exported == shown > 0
-    assert v[state] == "RUNNING"
+    assert v[STATE] == "RUNNING"
     assert methods.returncode == 0, methods.stderr
     codes = json.loads(methods.stdout)
     for key, code in codes.items():
         method = key.split()[0]
         assert code == (200 if method in ("GET", "HEAD") else 405), (key, code)
-    assert proc.returncode == 0, (out, err)
+    assert run.code == 0, (out, err)
     assert "SIGINT" in out or "interrupted" in out, out
