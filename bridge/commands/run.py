@@ -17,7 +17,7 @@ from ..errors import BridgeError, DriveSetupError
 from ..interpolator import Move, load_move_file, parse_move
 from ..master import DriveSetup
 from ..node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
-from ..timing import TimeMode
+from ..timing import DEFAULT_LOCKSTEP_WAIT_S, TimeMode
 from .common import add_clock_argument, default_store_path, regulated_axis
 
 if TYPE_CHECKING:
@@ -107,6 +107,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"stop the axis after N overrunning cycles in a row (default {DEFAULT_OVERRUN_LIMIT})",
     )
     parser.add_argument(
+        "--lockstep-wait",
+        type=cli.bounded_float(1e-3, 60.0),
+        default=DEFAULT_LOCKSTEP_WAIT_S,
+        metavar="S",
+        help="--clock lockstep: wall seconds to wait for a TPDO before counting it missed "
+        f"(default {DEFAULT_LOCKSTEP_WAIT_S:g}; more for a slow simulated drive or a busy "
+        "host, up to 60)",
+    )
+    parser.add_argument(
         "--target-tolerance",
         type=cli.positive_float,
         default=DEFAULT_TARGET_TOLERANCE * 1e6,
@@ -162,8 +171,11 @@ def run(args: argparse.Namespace) -> int:
         time_mode=TimeMode(args.clock),
         realtime=realtime_options(args),
         overrun_limit=args.overrun_limit,
+        lockstep_wait_s=args.lockstep_wait,
         watch=watch,
     )
+    if args.clock != TimeMode.LOCKSTEP.value and args.lockstep_wait != DEFAULT_LOCKSTEP_WAIT_S:
+        raise cli.UsageError("--lockstep-wait applies to --clock lockstep only")
     if not moves and args.seconds is None:
         raise cli.UsageError("give --move, --move-file or --seconds (otherwise it never ends)")
     store = options.bridge.store_path
