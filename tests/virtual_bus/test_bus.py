@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import shutil
 import socket
 import subprocess
@@ -35,7 +36,7 @@ from virtual_bus import (
     setup_vcan,
 )
 from virtual_bus.__main__ import main
-from virtual_bus.open import SOCKETCAN_RCVBUF_BYTES
+from virtual_bus.open import SOCKETCAN_RCVBUF_BYTES, _driver_messages
 from virtual_bus.vcan import check_ifname, run_ip
 
 # --------------------------------------------------------------------------- config
@@ -326,6 +327,18 @@ def test_a_socketcan_bus_gets_its_receive_buffer_past_rmem_max() -> None:
     finally:
         bus.shutdown()
     assert got == 2 * SOCKETCAN_RCVBUF_BYTES, (got, rmem_max)
+
+
+def test_a_driver_note_unrelated_to_the_failure_is_left_out() -> None:
+    """pcan logs that it lacks the ``uptime`` package while its bus opens; that says nothing of
+    why the bus failed, so the error leaves it out (other driver messages stay)."""
+    with _driver_messages() as said:
+        logging.getLogger("can.pcan").warning(
+            "uptime library not available, timestamps are relative to boot time and not to "
+            "Epoch UTC"
+        )
+        logging.getLogger("can.kvaser").warning("Kvaser canlib is unavailable.")
+    assert said == ["Kvaser canlib is unavailable."]
 
 
 # ---------------------------------------------------------------- frames on the bus
