@@ -135,3 +135,35 @@ def test_the_monitor_judges_the_demos_bus_log_as_its_trace(demo: Demo) -> None:
     assert log.dominant_frequency_hz == pytest.approx(trace.dominant_frequency_hz, rel=0.02)
     assert log.duration_s == pytest.approx(trace.duration_s, abs=2e-3)
     assert "SYNC count times 1 ms" in log.warning
+
+
+def test_plot_draws_the_demos_trace(demo: Demo) -> None:
+    """``hil plot`` on the demo's ordinary run: the following error on the load scale is the
+    trace's own, its spectrum peaks at the limit cycle summary.json names, inside the band it
+    shades (eq. 13), which is summary.json's (issue 31 item 2)."""
+    from hil.plot import PlotSetup, panels
+    from virtual_bus.formats.axis import load_axis
+
+    axis_path = demo.out / "axis_limit_cycle.toml"
+    if not axis_path.exists():  # the axis as given limit-cycles
+        axis_path = PAPER_AXIS
+    axis = load_axis(axis_path)
+    summary = json.loads((demo.out / "summary.json").read_text())
+    trace = read_trace(demo.out / "ordinary.csv")
+    cols = trace.columns
+    setup = PlotSetup("m", axis.transmission_ratio, axis.control.kv)
+    plots = {p.ylabel: p for p in panels(trace, setup)}
+    error = plots["following error, µm"].curves[0].values
+    assert np.allclose(error, (cols["position_reference"] - cols["load_position"]) * 1e6)
+    spectrum = plots["amplitude, µm"]
+    assert spectrum.band_hz == pytest.approx(tuple(summary["band_hz"]))
+    # below the band the move's own error (eq. 7) dominates; inside it, the limit cycle
+    low, high = spectrum.band_hz
+    inside = (spectrum.x >= low) & (spectrum.x <= high)
+    peak = spectrum.x[inside][int(np.argmax(spectrum.curves[0].values[inside]))]
+    found = summary["runs"]["ordinary"]["dominant_frequency_hz"]
+    assert peak == pytest.approx(found, abs=0.5)  # the whole run's FFT, the late window's
+    with contextlib.redirect_stdout(io.StringIO()) as said:
+        assert main(["plot", str(demo.out / "ordinary.csv"), "--axis", str(axis_path)]) == 0
+    assert "following error" in said.getvalue() and "µm" in said.getvalue()
+    assert (demo.out / "ordinary.png").is_file() and (demo.out / "ordinary.html").is_file()

@@ -95,3 +95,72 @@ def test_emps_dataset_trace(tmp_path: Path) -> None:
     assert "motor / k_r − load, µm" not in plots  # no load column: no empty panel
     assert main(["plot", str(csv), "--axis", str(axis_path)]) == 0
     assert "http" not in (tmp_path / "DATA_EMPS.html").read_text(encoding="utf-8")
+
+
+def test_xl330_dataset_trace(tmp_path: Path) -> None:
+    """BAM's XL330 (a rotary axis, no load scale, k_r = 1): positions in rad, the following
+    error in mrad from the trace's own columns, the band from the imported axis file."""
+    from plant_sim.datasets.xl330 import import_xl330
+    from virtual_bus.formats.axis import load_axis
+    from virtual_bus.shipped import SHARED_DIR
+
+    logs = sorted((SHARED_DIR / "data" / "bam_xl330").glob("*.json"))
+    if not logs:
+        pytest.skip(f"XL330 data not found at {SHARED_DIR / 'data' / 'bam_xl330'}")
+    done = import_xl330(logs[:1], tmp_path)
+    csv = done.traces[0].target
+    axis_path = next(p for p in done.axis_files if p.name.endswith("_nominal.toml"))
+    axis = load_axis(axis_path)
+    trace = read_trace(csv)
+    cols = trace.columns
+    setup = PlotSetup("rad", axis.transmission_ratio, axis.control.kv)
+    plots = {p.ylabel: p for p in panels(trace, setup)}
+    expect = (cols["position_reference"] - cols["motor_position"] / axis.transmission_ratio) * 1e3
+    assert np.allclose(plots["following error, mrad"].curves[0].values, expect)
+    assert "position, rad" in plots and "torque, N m" in plots
+    assert plots["amplitude, mrad"].band_hz == (axis.control.kv / 4, axis.control.kv)
+    assert main(["plot", str(csv), "--axis", str(axis_path)]) == 0
+    assert "http" not in csv.with_suffix(".html").read_text(encoding="utf-8")
+
+
+def test_a_bridge_trace(tmp_path: Path, capsys) -> None:
+    """``bridge run --trace`` against the simulated drive (lockstep, virtual bus): the
+    following error on the load scale and the deflection between the measuring systems are
+    the trace's own columns in µm; the run's eq. 7 error v / k_v is what the panel peaks at."""
+    import uuid
+
+    from bridge.__main__ import main as bridge_main
+    from plant_sim.drive import DriveConfig, SimulatedDrive
+    from virtual_bus import BusConfig, Interface, open_bus
+    from virtual_bus.formats.axis import load_axis
+
+    axis_path = Path(__file__).parents[2] / "config" / "paper_axis.toml"
+    axis = load_axis(axis_path)
+    channel = f"plot-{uuid.uuid4().hex[:10]}"
+    bus = open_bus(BusConfig(interface=Interface.VIRTUAL, channel=channel))
+    drive = SimulatedDrive(bus, 2, axis, DriveConfig())
+    drive.start()
+    csv = tmp_path / "bridge.csv"
+    feed = 0.02
+    try:
+        argv = ["run", "--interface", "virtual", "--channel", channel, "--axis", str(axis_path)]
+        argv += ["--move", f"target=0.01,feed={feed}", "--hold", "0.3", "--clock", "lockstep"]
+        assert bridge_main([*argv, "--trace", str(csv)]) == 0
+    finally:
+        drive.stop()
+        bus.shutdown()
+    capsys.readouterr()
+    trace = read_trace(csv)
+    cols = trace.columns
+    plots = {
+        p.ylabel: p for p in panels(trace, PlotSetup("m", axis.transmission_ratio, axis.control.kv))
+    }
+    error = plots["following error, µm"].curves[0].values
+    assert np.allclose(error, (cols["position_reference"] - cols["load_position"]) * 1e6)
+    deflection = plots["motor / k_r − load, µm"].curves[0].values
+    expect = (cols["motor_position"] / axis.transmission_ratio - cols["load_position"]) * 1e6
+    assert np.allclose(deflection, expect)
+    assert np.max(error) == pytest.approx(feed / axis.control.kv * 1e6, rel=0.05)  # eq. 7
+    assert {"β, rad/s", "λ, 1", "torque, N m"} <= set(plots)
+    assert main(["plot", str(csv), "--axis", str(axis_path)]) == 0
+    assert (tmp_path / "bridge.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
