@@ -30,6 +30,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tests.chromium import PageCheck as Page
@@ -37,6 +38,7 @@ from tests.chromium import chromium_problem, open_page, write_screenshot
 from tests.command_line import next_line
 from tests.paths import ROOT
 from virtual_bus.formats.axis import dump_axis, load_axis
+from virtual_bus.formats.trace import read_trace
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
 
 PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
@@ -94,12 +96,13 @@ def udp_drive(netns_skip_reason: str | None, axis_file: Path) -> Iterator[Networ
 
 # --- what the test asks the page (JavaScript, evaluated in order) ---
 FIRST = "scope.waitForSamples(100).then(() => [scope.samples, scope.lastT])"
-#: the move done (0.5 s of enabling at most, 6 s of motion): the largest following
-#: error shown is that of the constant feed
+#: the move done (0.5 s of enabling at most, 6 s of motion): every 8th sample shown from 2 s
+#: to 6 s, all at constant feed, as [t, e] -- compared with the bridge's own trace of the run
 MOVING = (
     f"new Promise(r => (function w() {{ if (scope.lastT > {TARGET_M / FEED_M_S + 2}) "
-    "r(); else setTimeout(w, 50); })()).then(() => [scope.samples, scope.lastT, "
-    "Math.max(...scope.cols.e.filter(x => x !== null))])"
+    "r(); else setTimeout(w, 50); })()).then(() => { const c = scope.cols; const v = []; "
+    "for (let i = 0; i < c.t.length; i += 8) if (c.t[i] >= 2 && c.t[i] <= 6 && "
+    "c.e[i] !== null) v.push([c.t[i], c.e[i]]); return [scope.samples, scope.lastT, v]; })"
 )
 ERRORS = "[scope.dropped, scope.pushed]"
 FE = "document.querySelectorAll('.uplot').length"
@@ -115,11 +118,9 @@ RESUME = (
 )
 STATE = "document.getElementById('state').textContent"
 
-#: Attempts of a run a starved host may spoil (tests/fail_safe.py's ATTEMPTS alike).
+#: Attempts of a run a starved host may end early (tests/fail_safe.py's ATTEMPTS alike); a
+#: starved run that goes on is judged (the checks above are medians).
 ATTEMPTS = 3
-#: Skipped SYNCs that say the host starved the bridge for 125 ms at 2.5 ms (half the drive's
-#: heartbeat consumer time): the page then shows a stall, not the loop (tests/fail_safe.py).
-STARVED_SYNCS = 50
 
 
 @dataclass
@@ -133,18 +134,17 @@ class Run:
     out: str
     err: str
     code: int
+    trace: Path
 
 
 def spoiled(run: Run) -> str | None:
-    """Why this run says nothing of the scope, or None: the host starved the bridge (its
-    skipped SYNCs) or the drive stopped the axis because the bridge's heartbeat ran out
-    (EMCY 8130h: the drive's supervision doing its job, issue 28), ending the run."""
-    skipped = re.search(r"skipped SYNCs (\d+)", run.out)
-    if skipped and int(skipped.group(1)) >= STARVED_SYNCS:
-        return f"the host starved the bridge: {skipped.group(1)} skipped SYNCs"
+    """Why this run says nothing of the scope, or None: the run stopped before the page had
+    read it -- a host that starved one process past the other's heartbeat consumer time (the
+    drive's EMCY 8130h, or the bridge's "no heartbeat of drive"; supervision doing its job,
+    issue 28). Every stop is shown in full if all attempts end so."""
     stopped = re.search(r"^stopped: (.*)$", run.out, re.M)
-    if stopped and ("DRIVE_EMCY" in stopped.group(1) or "8130" in stopped.group(1)):
-        return f"the drive stopped the axis first: {stopped.group(1)}"
+    if stopped and run.page is None:
+        return f"the run stopped first: {stopped.group(1)}"
     return None
 
 
@@ -158,6 +158,7 @@ def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
         *(sys.executable, "-m", "bridge", "run", "--interface", "udp_multicast"),
         *("--channel", UDP_GROUP, "--axis", str(axis_file), "--clock", "realtime"),
         *("--store", str(store), "--overrun-limit", "1000000"),
+        *("--trace", str(tmp_path / "trace.csv")),
         *("--move", f"target={TARGET_M},feed={FEED_M_S}", "--hold", "600", "--scope"),
     ]
     proc = subprocess.Popen(
@@ -201,7 +202,8 @@ def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)  # the run ends as any run does
         out, err = proc.communicate(timeout=BOUND_S)
-    return Run(url, page, problem, methods, out, "".join(seen) + err, proc.returncode)
+    code = proc.returncode
+    return Run(url, page, problem, methods, out, "".join(seen) + err, code, tmp_path / "trace.csv")
 
 
 def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
@@ -217,7 +219,7 @@ def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
         tries.append(why)
         print(f"scope: run again, {why}")
     else:
-        raise AssertionError(f"every attempt spoiled by the host: {tries}")
+        raise AssertionError(f"every attempt spoiled: {tries}\nthe last: {run.out}")
     assert run.page is not None, f"{run.problem}\nbridge run: {run.out}\n{run.err}"
     page, methods, url, out, err = run.page, run.methods, run.url, run.out, run.err
     assert methods is not None
@@ -229,10 +231,22 @@ def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
     assert page.external_requests(allowed=(url,)) == [], page.requests
     assert any(r.endswith("uPlot.iife.min.js") for r in page.requests)
     n1, t1 = v[FIRST]
-    n2, t2, e_max_um = v[MOVING]
-    assert n2 > n1 > 100 and t2 > t1, (v[FIRST], v[MOVING])  # the data moves
-    # eq. 7 at constant feed: e = v / k_v, within 20 % (a real-time loop on a busy host)
-    assert e_max_um == pytest.approx(FEED_M_S / KV_PER_S * 1e6, rel=0.2)
+    n2, t2, shown = v[MOVING]
+    assert n2 > n1 > 100 and t2 > t1, (v[FIRST], n2, t2)  # the data moves
+    # what the page shows is what the loop computed: the bridge's trace of the same run has
+    # the same following error at the same control time (to 1 nm: float32 on the way is fine)
+    trace = read_trace(run.trace)
+    times, errors_um = trace.time, trace["following_error"] * 1e6
+    rows = np.clip(np.searchsorted(times, [t for t, _ in shown]), 0, len(times) - 1)
+    same_t = np.abs(times[rows] - [t for t, _ in shown]) < 1e-9
+    assert len(shown) >= 100 and same_t.all(), (len(shown), int((~same_t).sum()))
+    assert np.allclose(errors_um[rows], [e for _, e in shown], rtol=0, atol=1e-3)  # 1 nm
+    # eq. 7 at constant feed, e = v / k_v within 20 %, where the host served the loop (a
+    # starved real-time loop's error is what it is; the trace says the page shows it right)
+    skipped = int(re.search(r"skipped SYNCs (\d+)", run.out).group(1))  # type: ignore[union-attr]
+    if skipped < 50:
+        median = float(np.median([e for _, e in shown]))
+        assert median == pytest.approx(FEED_M_S / KV_PER_S * 1e6, rel=0.2)
     dropped, pushed = v[ERRORS]
     assert pushed >= n2 and 0 <= dropped < pushed
     assert v[FE] == 4  # following error, β/λ, speeds, torque
