@@ -21,7 +21,7 @@ from virtual_bus import VirtualBusError
 from virtual_bus.errors import BusUnavailableError, RealTimeRefused
 from virtual_bus.formats import FormatError
 
-from .commands.common import PROG
+from .commands.common import PROG as PROG  # the parser's name (tests build it)
 from .errors import BridgeError, DriveSetupError
 
 COMMANDS = ("run", "probe", "config", "eds", "busload", "host_latency", "freqresp", "tune")
@@ -51,7 +51,7 @@ def quiet_sdo_client_logging() -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     quiet_sdo_client_logging()
-    return cli.main(PROG, DESCRIPTION, cli.load_commands("bridge", COMMANDS), argv, FAILURES)
+    return cli.run_package("bridge", DESCRIPTION, COMMANDS, argv, FAILURES)
 
 
 if __name__ == "__main__":

@@ -298,6 +298,9 @@ class Bridge:
         #: lockstep with a simulated peer in this thread (SimulatedDrive.polled): called right
         #: after the SYNC has gone out, so the peer answers before the bridge waits
         self.peer_poll: Callable[[], int] | None = None
+        #: called with the bridge after every cycle of :meth:`run` (``bridge run``'s status,
+        #: bridge.status); None: nothing
+        self.after_cycle: Callable[[Bridge], None] | None = None
 
     def use_layout(self, layout: CycleLayout) -> None:
         """Expect the frames of ``layout`` after every SYNC and send its RPDO (start-up)."""
@@ -767,6 +770,8 @@ class Bridge:
             while cycles is None or n < cycles:
                 self.run_cycle()
                 n += 1
+                if self.after_cycle is not None:
+                    self.after_cycle(self)
                 if until is not None and until(self):
                     break
         finally:

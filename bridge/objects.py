@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import canopen
+from canopen.objectdictionary import datatypes as dt
 from canopen.sdo import SdoAbortedError
 
 from virtual_bus.frame_guard import FrameFault, FrameGuard
@@ -37,6 +38,16 @@ _U8 = struct.Struct("<B")
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
 _I32 = struct.Struct("<i")
+#: How the store's readable table unpacks a value, by CiA 301 data type.
+_READABLE = {
+    dt.BOOLEAN: _U8,
+    dt.UNSIGNED8: _U8,
+    dt.UNSIGNED16: _U16,
+    dt.UNSIGNED32: _U32,
+    dt.INTEGER16: struct.Struct("<h"),
+    dt.INTEGER32: _I32,
+    dt.REAL32: _F32,
+}
 
 
 @dataclass
@@ -269,6 +280,24 @@ class ObjectServer:
             values[(index, subindex)] = raw
         return values
 
+    def stored_readable(self, values: RawValues) -> dict[tuple[int, int], str]:
+        """``values`` as a person reads them: 'name = value unit' by object (the store's
+        ``readable`` table, bridge.store)."""
+        by_key = {(e.index, e.subindex): e for e in objdict.entries()}
+        readable = {}
+        for key, raw in values.items():
+            entry = by_key.get(key)
+            packing = None if entry is None else _READABLE.get(entry.data_type)
+            if entry is None or packing is None or packing.size != len(raw):
+                continue
+            value = packing.unpack(raw)[0]
+            if key == (objdict.HEARTBEAT_CONSUMER, 1):  # CiA 301: node-ID << 16 | time in ms
+                readable[key] = f"{entry.name} = node {value >> 16} within {value & 0xFFFF} ms"
+                continue
+            unit = f" {entry.unit}" if entry.unit else ""
+            readable[key] = f"{entry.name} = {value:.7g}{unit}"
+        return readable
+
     def _store_command(self, index: int, value: int) -> None:
         save = index == objdict.STORE_PARAMETERS
         signature = objdict.SAVE_SIGNATURE if save else objdict.LOAD_SIGNATURE
@@ -290,7 +319,8 @@ class ObjectServer:
             )
         try:
             if save:
-                self.store.save(self.stored_values())
+                values = self.stored_values()
+                self.store.save(values, self.stored_readable(values))
                 log.info("parameters stored in %s", self.store.path)
             else:
                 self.store.clear()

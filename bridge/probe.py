@@ -15,8 +15,10 @@ the profile it writes -- or **every** problem the start-up would stop on, each w
 object, what the drive showed and the profile key that replaces it (one round of
 commissioning, not one per problem). The written profile is consistent with what the probe
 found: its load source is the best usable candidate (never an object the EDS marks not
-mappable). ``--eds`` is checked before the bus is opened (a file that is not an EDS: one
-line, exit 2). Exit 0 when the start-up would run the drive; 1 when it would stop (the
+mappable). ``--dcf`` writes the drive's CiA 306 DCF carrying that supervision
+(:mod:`bridge.commission.supervision_dcf`). ``--eds`` is checked before the bus is opened (a
+file that is not an EDS: one line, exit 2). Exit 0 when the start-up would run the drive; 1
+when it would stop (the
 profile is written all the same, for the user to complete) or the drive does not answer;
 2 for bad arguments.
 """
@@ -65,6 +67,7 @@ from .adapt import (
     plan,
     position_units_per_rev,
 )
+from .commission.supervision_dcf import supervision_dcf
 from .errors import BridgeConfigError, DriveSetupError
 from .layout import check_node_id
 from .master import DriveMaster, DriveSetup
@@ -340,10 +343,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--name", help="profile name (default: from 1018h)")
     parser.add_argument("--out", type=cli.new_file, help="write the drive profile (TOML) here")
+    parser.add_argument(
+        "--dcf",
+        type=cli.new_file,
+        metavar="FILE.dcf",
+        help="write the drive's CiA 306 DCF carrying the supervision of the bridge the start-up "
+        "plans (1016h, 6007h, set-point watchdog; needs --eds); load it with `bridge config "
+        "load` to have the drive watch the bridge from power-on",
+    )
+    parser.add_argument(
+        "--bridge-id",
+        type=cli.node_id,
+        default=DEFAULT_NODE_ID,
+        help=f"the bridge's node-ID the drive is to watch (default {DEFAULT_NODE_ID})",
+    )
+    parser.add_argument(
+        "--bridge-heartbeat",
+        type=int,
+        default=DEFAULT_HEARTBEAT_MS,
+        metavar="MS",
+        help=f"the bridge's heartbeat period, 1017h, in ms (default {DEFAULT_HEARTBEAT_MS})",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     drive_id = check_node_id("--drive-id", args.drive_id)
+    if args.dcf is not None and args.eds is None:
+        raise cli.UsageError("--dcf needs --eds: the DCF is the drive's EDS with its values")
+    if not 1 <= args.bridge_heartbeat <= 0xFFFF:
+        raise cli.UsageError(
+            f"--bridge-heartbeat {args.bridge_heartbeat}: allowed 1..65535 ms (1017h, UNSIGNED16)"
+        )
     od = import_eds(args.eds, drive_id) if args.eds is not None else None
     mappable = mappable_from_eds(args.eds, drive_id) if args.eds is not None else None
     bus = open_bus(BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate))
@@ -352,7 +382,18 @@ def run(args: argparse.Namespace) -> int:
         result = probe_drive(bus, drive_id, scan=args.scan, extra=extra)
     finally:
         bus.shutdown()
-    return report(result, drive_id, mappable, args.name, args.out, od)
+    dcf = None if args.dcf is None else DcfRequest(args.dcf, args.eds, args.bitrate)
+    bridge = (args.bridge_id, args.bridge_heartbeat)
+    return report(result, drive_id, mappable, args.name, args.out, od, dcf=dcf, bridge=bridge)
+
+
+@dataclass(frozen=True)
+class DcfRequest:
+    """``--dcf``: the file to write, the drive's EDS it is made from, the bus's bit/s."""
+
+    path: Path
+    eds: Path
+    bitrate: int
 
 
 def identity_name(facts: DriveFacts) -> str:
@@ -452,10 +493,15 @@ def report(
     name: str | None,
     out: Path | None,
     od: canopen.ObjectDictionary | None = None,
+    *,
+    dcf: DcfRequest | None = None,
+    bridge: tuple[int, int] = (DEFAULT_NODE_ID, DEFAULT_HEARTBEAT_MS),
 ) -> int:
     """Print what was found, the load-scale candidates, the drive's supervision of the bridge
     and the start-up's plan -- or every problem it would stop on; write the profile to
-    ``out``. 0: the start-up would run the drive; 1: it would stop."""
+    ``out`` and the supervision DCF to ``dcf``; ``bridge``: the node-ID and heartbeat period
+    (ms) of the bridge the drive is to watch. 0: the start-up would run the drive; 1: it
+    would stop."""
     if isinstance(result, DriveFacts):
         result = ProbeResult(result)
     facts = result.facts
@@ -478,9 +524,7 @@ def report(
     problems: list[DriveSetupError] = []
     supervision = None
     try:  # the bridge's defaults: node-ID 1, heartbeat 100 ms (1017h)
-        supervision = plan_supervision(
-            facts, profile, drive_id, DEFAULT_NODE_ID, DEFAULT_HEARTBEAT_MS
-        )
+        supervision = plan_supervision(facts, profile, drive_id, *bridge)
     except DriveSetupError as exc:
         problems.append(exc)
     for line in describe_supervision(facts, supervision):
@@ -509,4 +553,22 @@ def report(
             comments += (f"load source: the best candidate the probe saw, {chosen.describe()}",)
         write_atomic(out, render_profile(profile, comments))
         print(f"wrote {out}")
+    if dcf is not None and supervision is None:
+        print(f"{dcf.path} not written: the supervision plan stopped (above)")
+    if dcf is not None and supervision is not None:
+        assert od is not None, "--dcf needs --eds (checked by run)"
+        text = supervision_dcf(
+            dcf.eds,
+            od,
+            supervision,
+            drive_id=drive_id,
+            bitrate=dcf.bitrate,
+            dcf_name=dcf.path.name,
+            node_name=profile.name,
+        )
+        write_atomic(dcf.path, text)
+        print(
+            f"wrote {dcf.path}: the supervision of the bridge (node {bridge[0]}) on drive "
+            f"{drive_id}: {', '.join(format_key(w.key) for w in supervision.writes)}"
+        )
     return 1 if problems else 0

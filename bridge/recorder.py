@@ -37,6 +37,7 @@ from virtual_bus import BusConfig, Interface
 from virtual_bus.contract import SYNC_COB_ID
 from virtual_bus.formats.records import RecordFile
 from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace, TraceWriter
+from virtual_bus.own_frames import frame_key
 
 from .cycle import CycleController
 
@@ -298,16 +299,6 @@ class BusLog:
                     self._file.close()
 
 
-def _frame_key(msg: can.Message) -> tuple[int, bool, bool, int, bytes]:
-    return (
-        msg.arbitration_id,
-        msg.is_extended_id,
-        msg.is_remote_frame,
-        msg.dlc,
-        bytes(msg.data),
-    )
-
-
 class WireOrderBus(can.BusABC):
     """The bridge's end of a bus whose frames are logged in the order the wire carried them.
 
@@ -331,7 +322,7 @@ class WireOrderBus(can.BusABC):
         super().__init__(channel=None)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        key = _frame_key(msg)
+        key = frame_key(msg)
         with self._lock:  # queued first: the echo may be read by another thread at once
             self._pending.append(key)
         try:
@@ -352,7 +343,7 @@ class WireOrderBus(can.BusABC):
             if msg is None:
                 return None, False
             with self._lock:
-                own = bool(self._pending) and self._pending[0] == _frame_key(msg)
+                own = bool(self._pending) and self._pending[0] == frame_key(msg)
                 if own:
                     self._pending.popleft()
             self.log.log(msg, received=not own)

@@ -47,8 +47,9 @@ from .objects import params_with_store
 from .params import BridgeParams
 from .recorder import BusLog, TraceRecorder, log_channel
 from .scaling import LOAD_INCREMENTS_PER_UNIT
+from .status import Watch
 from .store import ParameterStore
-from .timing import LockstepPacer, Pacer, RealTimePacer, TimeMode
+from .timing import DEFAULT_LOCKSTEP_WAIT_S, LockstepPacer, Pacer, RealTimePacer, TimeMode
 
 log = logging.getLogger("bridge")
 
@@ -70,6 +71,11 @@ class RunOptions:
     time_mode: TimeMode = TimeMode.REAL_TIME
     realtime: RealTimeOptions = field(default_factory=RealTimeOptions)
     overrun_limit: int | None = DEFAULT_OVERRUN_LIMIT
+    #: lockstep: wall time to wait for a TPDO before it counts as missed, s
+    lockstep_wait_s: float = DEFAULT_LOCKSTEP_WAIT_S
+    #: called with the bridge built and the options, before its start-up (bridge.status:
+    #: the plan, the live line, the verdict's figures); None: nothing
+    watch: Watch | None = None
 
 
 @dataclass(frozen=True)
@@ -182,7 +188,7 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
     pacer: Pacer = (
         RealTimePacer(params.cycle_s)
         if options.time_mode is TimeMode.REAL_TIME
-        else LockstepPacer(params.cycle_s)
+        else LockstepPacer(params.cycle_s, options.lockstep_wait_s)
     )
     recorder = TraceRecorder(options.trace_path, keep=False) if options.trace_path else None
     bus_log = None
@@ -214,6 +220,8 @@ def _run_on(bus: can.BusABC, options: RunOptions, params: BridgeParams) -> RunRe
         busy_poll=options.realtime.busy_poll,
     )
     _command_line_over_store(bridge, options)
+    if options.watch is not None:
+        options.watch(bridge, options)
     try:
         return _loop(bridge, options, bridge.controller.params)
     finally:

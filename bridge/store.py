@@ -12,7 +12,12 @@ start, as CiA 301 says ("restored parameters are valid after reset or power-up")
 File format (JSON, UTF-8)::
 
     {"format": "backlash-bridge parameter store", "version": 1,
-     "objects": {"2000h:00": "0000c841", ...}}   # raw SDO bytes, hex, little-endian
+     "objects": {"2000h:00": "0000c841", ...},   # raw SDO bytes, hex, little-endian
+     "readable": {"2000h:00": "Position loop gain kv = 25 1/s", ...}}
+
+``objects`` is what a bridge loads. ``readable`` says the same values as a person reads them
+(name, decoded value, unit), for someone opening the file; it is written, never read: an edit
+there changes nothing (edit the value over SDO and store it again, or remove the file).
 
 Writes are atomic (:func:`virtual_bus.atomic.write_atomic`, durable): a temporary file in the
 same directory (``.NAME.XXXXXXXX.tmp``), fsync'ed, renamed over the store, then the directory
@@ -25,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import json
 import re
+from collections.abc import Mapping
 from pathlib import Path
 
 from virtual_bus.atomic import fsync_directory, write_atomic
@@ -48,13 +54,18 @@ class ParameterStore:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
 
-    def save(self, values: RawValues) -> None:
-        """Write ``values`` atomically (OSError if the directory is not writable)."""
-        doc = {
+    def save(
+        self, values: RawValues, readable: Mapping[tuple[int, int], str] | None = None
+    ) -> None:
+        """Write ``values`` atomically (OSError if the directory is not writable), with
+        ``readable``, each value as a person reads it, beside them (never read back)."""
+        doc: dict[str, object] = {
             "format": FORMAT,
             "version": VERSION,
             "objects": {_key(i, s): raw.hex() for (i, s), raw in sorted(values.items())},
         }
+        if readable:
+            doc["readable"] = {_key(i, s): text for (i, s), text in sorted(readable.items())}
         write_atomic(self.path, json.dumps(doc, indent=1) + "\n", durable=True)
 
     def clear(self) -> None:

@@ -185,6 +185,27 @@ def main(
         raise
 
 
+def run_package(
+    package: str,
+    description: str,
+    commands: Sequence[str],
+    argv: Sequence[str] | None,
+    failures: Sequence[Failure] = (),
+    *,
+    needs: Sequence[str] = (),
+    extra: str = "sim",
+    defaults: Mapping[str, object] | None = None,
+) -> int:
+    """The ``main`` of ``python -m PACKAGE``: one line and exit 1 when a module of ``needs``
+    (what the optional ``extra`` installs) is missing (:func:`missing_extra`), else
+    :func:`main` over ``PACKAGE.commands.NAME`` for each of ``commands``
+    (:func:`load_commands`), with the package's ``failures`` and ``defaults``."""
+    prog = f"python -m {package}"
+    if needs and (code := missing_extra(prog, needs, extra)) is not None:
+        return code
+    return main(prog, description, load_commands(package, commands), argv, failures, defaults)
+
+
 def _stdout_gone() -> bool:
     """Whether a broken pipe is standard output's (not a socket's or a child's pipe): the
     write end of a pipe whose reader has closed polls as an error."""

@@ -28,15 +28,8 @@ SIM_MODULES = ("numba", "matplotlib")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    if (code := cli.missing_extra(PROG, SIM_MODULES, "sim")) is not None:
-        return code
-    return cli.main(
-        PROG,
-        DESCRIPTION,
-        cli.load_commands("diagnosis", COMMANDS),
-        argv,
-        failures=(cli.Failure((DiagnosisError, PlantSimError, FormatError, OSError)),),
-    )
+    failures = (cli.Failure((DiagnosisError, PlantSimError, FormatError, OSError)),)
+    return cli.run_package("diagnosis", DESCRIPTION, COMMANDS, argv, failures, needs=SIM_MODULES)
 
 
 if __name__ == "__main__":

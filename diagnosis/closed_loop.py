@@ -56,11 +56,12 @@ from .parameters import (
     parameter_for,
     physical,
     uncertainty_box,
+    with_contact,
     within_format,
 )
 from .results import Score
 from .scoring import Scorer, heldout_blocks, signal_weights, validation_objectives
-from .screen import Screening, effect_values, with_contact
+from .screen import Screening, effect_values
 from .stages import Context
 
 #: Dead times around the evidence's estimate, in speed cycles either side.
@@ -292,7 +293,7 @@ def _only(
 ) -> AxisConfig:
     """``model`` (the evidence's, with every named effect) with the named effects not in
     ``keep`` taken out again. Free play kept on a rigid nominal without the compliance keeps
-    the stiff contact it was tested with (:func:`.screen.with_contact`)."""
+    the stiff contact it was tested with (:func:`.parameters.with_contact`)."""
     out = model
     for e in named:
         if e in keep:

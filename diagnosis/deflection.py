@@ -34,13 +34,11 @@ import numpy as np
 
 from virtual_bus.formats.axis import AxisConfig
 
-from .effects import Effect
+from .effects import DAMPING, FLEXIBILITY, Effect, model_values
 from .measured import Measured
 from .regression import Candidate, Relation
 
 NAME = "deflection"
-FLEXIBILITY = "mechanics.flexibility"  # 1/k, load units per N (pseudo-key)
-DAMPING = "mechanics.damping/stiffness"  # c/k, s (pseudo-key)
 ZERO = "deflection.zero"  # the two systems' zero difference (nuisance)
 #: Force below which a row is not used, as a fraction of the 99th percentile of |F_s|.
 FORCE_FRACTION = 0.02
@@ -61,18 +59,6 @@ def force_threshold(force: np.ndarray) -> float:
     """|F_s| below which rows are not used, from the recording's force (the same rule for the
     recording and every replay): FORCE_FRACTION of its 99th percentile."""
     return FORCE_FRACTION * float(np.percentile(np.abs(force), 99.0))
-
-
-def model_values(axis: AxisConfig) -> dict[str, float]:
-    m = axis.mechanics
-    out = {
-        "mechanics.backlash": float(m.backlash or 0.0),
-        "control.sensor_time_offset": float(axis.control.sensor_time_offset or 0.0),
-    }
-    if m.antiresonance:
-        out[FLEXIBILITY] = 1.0 / (m.load_mass * m.antiresonance**2)
-        out[DAMPING] = 2.0 * (m.damping_ratio or 0.0) / m.antiresonance
-    return out
 
 
 def deflection_relation(

@@ -41,7 +41,7 @@ import numpy as np
 
 from virtual_bus.formats.axis import AxisConfig
 
-from .effects import Effect
+from .effects import COMPLIANCE_KEY, DELTA_COULOMB_NEG, DELTA_VISCOUS_NEG, Effect
 from .fit import PERIODIC_COS, PERIODIC_SIN
 from .measured import Measured, window_samples
 from .regression import Candidate, Relation
@@ -49,11 +49,6 @@ from .regression import Candidate, Relation
 NAME = "torque balance"
 #: Slowest speed used, as a fraction of the top reference speed.
 MOVING_FRACTION = 0.005
-#: Pseudo-key of the compliance coefficient M/ω_a² (one measuring system).
-COMPLIANCE_KEY = "mechanics.load_mass/antiresonance^2"
-#: Candidate keys of asymmetric friction: the negative direction's friction minus the model's.
-DELTA_COULOMB_NEG = "friction.coulomb_negative-coulomb"
-DELTA_VISCOUS_NEG = "friction.viscous_negative-viscous"
 #: Points of the Stribeck-speed scan.
 STRIBECK_POINTS = 12
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 from virtual_bus.formats.trace import Trace
 
-from .effects import Effect, effects_in
+from .effects import MODELS, Effect, effects_in
 from .engine import DiagnosisOptions, diagnose
 from .synthetic import (
     Case,
@@ -198,23 +198,7 @@ def run_matrix(
 
 
 LABELS = ["none", *(e.value for e in Effect)]
-SHORT = {
-    "none": "none",
-    "backlash": "bl",
-    "compliance": "cmp",
-    "coulomb_friction": "coul",
-    "viscous_friction": "visc",
-    "asymmetric_friction": "asym",
-    "stribeck_friction": "strb",
-    "constant_load_torque": "load",
-    "periodic_disturbance": "per",
-    "torque_saturation": "sat",
-    "time_delay": "dly",
-    "sensor_time_offset": "sto",
-    "setpoint_delay": "spd",
-    "measurement_delay": "msd",
-    "scale_error": "scl",
-}
+SHORT = {"none": "none", **{e.value: m.short for e, m in MODELS.items()}}
 
 
 def confusion_markdown(results: Sequence[CaseResult]) -> str:

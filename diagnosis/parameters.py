@@ -131,6 +131,19 @@ def contact_antiresonance(axis: AxisConfig) -> float:
 CONTACT_DAMPING = 0.1
 
 
+def with_contact(model: AxisConfig) -> AxisConfig | None:
+    """``model`` with a stiff contact for free play when it is rigid (None: a lumped rigid
+    model has no motor-side inertia for one)."""
+    if not model.is_rigid:
+        return model
+    wa = contact_antiresonance(model)
+    if not wa > 0.0:
+        return None
+    return model.with_values(
+        {"mechanics.antiresonance": wa, "mechanics.damping_ratio": CONTACT_DAMPING}
+    )
+
+
 def options_for(axis_max_wa: float | None, axis: AxisConfig) -> KernelOptions:
     """Kernel substeps fixed for a whole fit, from the largest ω_a it may visit."""
     if axis_max_wa is None or not axis.motor_side_inertia > 0.0:

@@ -35,7 +35,7 @@ from scipy.interpolate import CubicSpline
 
 from plant_sim.physics.model import KernelOptions
 from plant_sim.physics.simulate import References, simulate, simulate_plant
-from plant_sim.plant import SteppedAxis
+from regulator.loop import SteppedAxis
 from virtual_bus.formats.axis import AxisConfig, PositionFeedback
 from virtual_bus.formats.errors import TraceWarning
 from virtual_bus.formats.trace import Trace, check_time_base

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from cmdline.quantity import prefix_for
 from virtual_bus.atomic import replacing
 
 from .outcome import Diagnosis
-from .quantity import prefix_for
 from .summary import compared, effect_name, signal_label
 from .unexplained import Range, Where
 

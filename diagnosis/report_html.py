@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from cmdline.quantity import number, percent, quantities, quantity
 from virtual_bus.atomic import write_atomic
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.trace import Trace
@@ -33,7 +34,6 @@ from . import report_figures as figs
 from .effects import MODELS
 from .outcome import Diagnosis
 from .parameters import key_unit
-from .quantity import number, percent, quantities, quantity
 from .results import DECISION_RULE
 from .summary import (
     effect_name,

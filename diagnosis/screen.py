@@ -53,37 +53,22 @@ from .loop_tests import NAME as LOOP_NAME
 from .loop_tests import loop_candidates, loop_tests
 from .measured import Measured, measured, measurement_noise, with_noise
 from .parameters import (
-    CONTACT_DAMPING,
-    contact_antiresonance,
     max_antiresonance,
     options_for,
     physical,
     uncertainty_box,
+    with_contact,
 )
 from .regression import Candidate, EffectTest, Fitted, Relation, evaluate_candidates, fit_relation
 from .replay import ReplayInput, like_recording, replay
 
 #: Effects tested through the loop (after the plant effects).
-LOOP_EFFECTS = frozenset(
-    {
-        Effect.TIME_DELAY,
-        Effect.TORQUE_SATURATION,
-        Effect.SETPOINT_DELAY,
-    }
-)
+LOOP_EFFECTS = frozenset(e for e, m in MODELS.items() if m.tested_in_loop)
 #: Effects of the table the evidence has no test for yet, and why (the report says so).
-UNTESTED = {
-    Effect.SCALE_ERROR: "no test of periodic terms in the deflection between the two measuring "
-    "systems yet",
-    Effect.MEASUREMENT_DELAY: "the loop test does not tell a late reading from a late set point "
-    "yet (on an FMU axis with a 2 ms set-point dead time, development seed 9, it scored higher "
-    "than the set point's); a trace of the set point as the drive received it decides",
-}
+UNTESTED = {e: m.untested for e, m in MODELS.items() if m.untested}
 #: A loop test whose p was below this is run again once the model changed (a plant effect
 #: named); above it the loop showed nothing and its verdict stands.
 LOOP_AGAIN_P = 0.05
-#: The set point's dead-time growth (s/s), freed in the closed-loop fit once it is named.
-RATE_KEY = "control.setpoint_delay_rate"
 #: Standard errors beyond the data-sheet box before the evidence says the data sheet is wrong.
 DATASHEET_SIGMAS = 3.0
 
@@ -142,113 +127,13 @@ class Screening:
 # ----------------------------------------------------------------------------------------
 # estimates -> axis values
 # ----------------------------------------------------------------------------------------
-def with_contact(model: AxisConfig) -> AxisConfig | None:
-    """``model`` with a stiff contact for free play when it is rigid (None: a lumped rigid
-    model has no motor-side inertia for one)."""
-    if not model.is_rigid:
-        return model
-    wa = contact_antiresonance(model)
-    if not wa > 0.0:
-        return None
-    return model.with_values(
-        {"mechanics.antiresonance": wa, "mechanics.damping_ratio": CONTACT_DAMPING}
-    )
-
-
 def effect_values(
     effect: Effect, est: Mapping[str, float], model: AxisConfig
 ) -> tuple[dict[str, float | None], str]:
     """Axis-file values that add ``effect`` at its estimate to ``model`` ({} and the reason
-    when the estimate is not physical)."""
-    fr = model.friction
-    if effect is Effect.COULOMB_FRICTION:
-        c = est.get("friction.coulomb", 0.0)
-        return ({"friction.coulomb": c}, "") if c > 0.0 else ({}, f"Coulomb friction {c:.3g} < 0")
-    if effect is Effect.VISCOUS_FRICTION:
-        b = est.get("friction.viscous", 0.0)
-        return ({"friction.viscous": b}, "") if b > 0.0 else ({}, f"viscous friction {b:.3g} < 0")
-    if effect is Effect.ASYMMETRIC_FRICTION:
-        cn = (fr.coulomb or 0.0) + est.get(idim.DELTA_COULOMB_NEG, 0.0)
-        vn = (fr.viscous or 0.0) + est.get(idim.DELTA_VISCOUS_NEG, 0.0)
-        if cn < 0.0 or vn < 0.0:
-            return {}, f"negative friction in the negative direction ({cn:.3g}, {vn:.3g})"
-        return {"friction.coulomb_negative": cn, "friction.viscous_negative": vn}, ""
-    if effect is Effect.STRIBECK_FRICTION:
-        s, vs = est.get("friction.stribeck", 0.0), est.get("friction.stribeck_speed", 0.0)
-        if not (s > 0.0 and vs > 0.0):
-            return {}, f"Stribeck excess {s:.3g} <= 0 (friction falling towards zero speed)"
-        return {"friction.stribeck": s, "friction.stribeck_speed": vs}, ""
-    if effect is Effect.CONSTANT_LOAD_TORQUE:
-        return {"disturbance.constant_torque": est.get("disturbance.constant_torque", 0.0)}, ""
-    if effect is Effect.PERIODIC_DISTURBANCE:
-        c, s = est.get(PERIODIC_COS, 0.0), est.get(PERIODIC_SIN, 0.0)
-        return {
-            "disturbance.periodic_amplitude": math.hypot(c, s),
-            "disturbance.periodic_period": est["disturbance.periodic_period"],
-            "disturbance.periodic_phase": math.atan2(s, c),
-        }, ""
-    if effect is Effect.COMPLIANCE:
-        return _compliance_values(est, model)
-    if effect is Effect.BACKLASH:
-        d = est.get("mechanics.backlash", 0.0)
-        if not 0.0 < d <= 0.1:
-            return {}, f"free play {d:.3g} outside (0, 0.1]"
-        values: dict[str, float | None] = {"mechanics.backlash": d}
-        if model.is_rigid:
-            on = with_contact(model)
-            if on is None:
-                return (
-                    {},
-                    "free play needs a contact stiffness: the model has no motor-side inertia",
-                )
-            values["mechanics.antiresonance"] = on.mechanics.antiresonance
-            values["mechanics.damping_ratio"] = on.mechanics.damping_ratio
-        return values, ""
-    if effect is Effect.SENSOR_TIME_OFFSET:
-        o = est.get("control.sensor_time_offset", 0.0)
-        if not abs(o) <= 0.05:
-            return {}, f"sensor time offset {o:.3g} s outside ±0.05 s"
-        return {"control.sensor_time_offset": o}, ""
-    if effect is Effect.TIME_DELAY:
-        return {"control.delay": est["control.delay"]}, ""
-    if effect is Effect.TORQUE_SATURATION:
-        return {"control.torque_limit": est["control.torque_limit"]}, ""
-    if effect is Effect.SETPOINT_DELAY:
-        # constant at the scan's estimate; the closed-loop fit frees its growth rate
-        return {"control.setpoint_delay": est["control.setpoint_delay"], RATE_KEY: 0.0}, ""
-    if effect is Effect.MEASUREMENT_DELAY:
-        return {"control.measurement_delay": est["control.measurement_delay"]}, ""
-    return {}, "no estimate"
-
-
-def _compliance_values(
-    est: Mapping[str, float], model: AxisConfig
-) -> tuple[dict[str, float | None], str]:
-    mass = model.mechanics.load_mass
-    wmax = max_antiresonance(model, 50)
-    if not wmax > 0.0:
-        return {}, "an elastic element needs motor-side inertia; the model lumps it all in the load"
-    if dfl.FLEXIBILITY in est:
-        flex = est[dfl.FLEXIBILITY]
-        damping = est.get(dfl.DAMPING, 0.0)
-        if model.mechanics.antiresonance is not None:
-            # on top of the stiff contact that came with free play (a known term there)
-            known = dfl.model_values(model)
-            flex += known[dfl.FLEXIBILITY]
-            damping += known[dfl.DAMPING]
-        if not flex > 0.0:
-            return {}, f"negative flexibility {flex:.3g}"
-        wa = math.sqrt(1.0 / (flex * mass))
-        xi = 0.5 * damping * wa
-    else:
-        kappa = est.get(idim.COMPLIANCE_KEY, 0.0)
-        if not kappa > 0.0:
-            return {}, f"M/ω_a² = {kappa:.3g} <= 0"
-        wa = math.sqrt(mass / kappa)
-        xi = 0.05
-    wa = min(wa, 0.99 * wmax)
-    xi = min(0.7, max(0.005, xi))
-    return {"mechanics.antiresonance": wa, "mechanics.damping_ratio": xi}, ""
+    when the estimate is not physical): the effect's own
+    :meth:`~diagnosis.effects.EffectModel.values`."""
+    return MODELS[effect].values(est, model)
 
 
 #: Relation keys that are axis keys (the others are converted).

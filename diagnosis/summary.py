@@ -20,12 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cmdline.quantity import factor, number, percent, quantities, quantity, ratio
+
 from .adequacy import inadequate
 from .closed_loop import GateStep
 from .effects import MODELS, Effect
 from .outcome import DatasheetVerdict, Diagnosis
 from .parameters import key_unit, units
-from .quantity import factor, number, percent, quantities, quantity, ratio
 from .unexplained import Range, Where
 
 

@@ -248,8 +248,9 @@ UNCERTAIN_KEYS = (
 # ----------------------------------------------------------------------------------------
 # excitation
 # ----------------------------------------------------------------------------------------
-def _trapezoid(distance: float, speed: float, accel: float, dt: float) -> np.ndarray:
-    """Speed samples of a point-to-point move (trapezoid or triangle), sign of distance."""
+def trapezoid(distance: float, speed: float, accel: float, dt: float) -> np.ndarray:
+    """Speed samples of a point-to-point move (trapezoid or triangle), sign of distance:
+    acceleration steps, no jerk limit (also the third test set's rapids)."""
     d = abs(distance)
     v = min(speed, math.sqrt(d * accel))
     t_acc = v / accel
@@ -306,7 +307,7 @@ def reference_profile(
                 direction = -direction
                 room = (hi - margin - x) if direction > 0 else (x - lo - margin)
             dist = min(dist, max(room, 1e-6))
-            prof = _trapezoid(direction * dist, speed, accel, cycle_s)
+            prof = trapezoid(direction * dist, speed, accel, cycle_s)
         dwell = np.zeros(round(rng.uniform(*exc.dwell_s) / cycle_s))
         if rng.random() < 0.25:
             dwell = dwell[: round(0.03 / cycle_s)]

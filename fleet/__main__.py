@@ -27,15 +27,8 @@ SIM_MODULES = ("numba", "matplotlib", "distributed", "pyarrow")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    if (code := cli.missing_extra(PROG, SIM_MODULES, "sim")) is not None:
-        return code
-    return cli.main(
-        PROG,
-        DESCRIPTION,
-        cli.load_commands("fleet", COMMANDS),
-        argv,
-        failures=(cli.Failure((FleetError, PlantSimError, FormatError, OSError)),),
-    )
+    failures = (cli.Failure((FleetError, PlantSimError, FormatError, OSError)),)
+    return cli.run_package("fleet", DESCRIPTION, COMMANDS, argv, failures, needs=SIM_MODULES)
 
 
 if __name__ == "__main__":

@@ -27,7 +27,7 @@ from virtual_bus.formats.errors import TornTailWarning
 from .candump import layout_for
 from .chunks import Chunk
 from .episodes import DetectorSetup, Episode, EpisodeFinder, Verdict
-from .errors import RecordingError
+from .errors import RecordingError, TimeBaseWarning
 from .lost_motion import LostMotionEstimator
 from .readers import open_chunks
 from .sources import RecordingKind, Source
@@ -49,7 +49,8 @@ class RecordingResult:
     reversals: how many reversals it rests on; backlash: the lost motion less the elastic
     wind-up (:class:`~.lost_motion.LostMotion`), nan for a rigid axis file or torque in ‰.
     error: one line when the file was unusable. warning: one line when the reader dropped a
-    torn tail (a recorder killed mid-write; the whole records before it were analysed).
+    torn tail (a recorder killed mid-write; the whole records before it were analysed) or
+    read a lockstep log on the SYNC count's time base (:mod:`.candump`).
     """
 
     path: str
@@ -81,6 +82,10 @@ class RecordingResult:
 
     @property
     def axis_id(self) -> str:
+        """``MACHINE/AXIS``, or the file's name where its path names neither (a file given
+        directly): two such files are two axes as far as the monitor can know."""
+        if not (self.machine or self.axis):
+            return Path(self.path).name
         return f"{self.machine or '?'}/{self.axis or '?'}"
 
 
@@ -115,12 +120,14 @@ def analyse(source: Source) -> RecordingResult:
     except (FormatError, PlantSimError, OSError) as exc:
         return dataclasses.replace(base, error=f"{source.path}: axis file: {exc}")
     base = dataclasses.replace(base, kv_per_s=axis.control.kv, load_unit=axis.load_unit)
+    reported = (TornTailWarning, TimeBaseWarning)
     with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", TornTailWarning)
+        for category in reported:
+            warnings.simplefilter("always", category)
         result = _analyse_or_error(source, axis, base)
-    torn = [str(w.message) for w in caught if issubclass(w.category, TornTailWarning)]
+    torn = [str(w.message) for w in caught if issubclass(w.category, reported)]
     for w in caught:  # any other warning goes on as it came
-        if not issubclass(w.category, TornTailWarning):
+        if not issubclass(w.category, reported):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     return dataclasses.replace(result, warning="; ".join(torn)) if torn else result
 
@@ -145,7 +152,7 @@ def _analyse(source: Source, axis: AxisConfig, base: RecordingResult) -> Recordi
     layout = None
     if source.kind is RecordingKind.CANDUMP:
         try:
-            layout = layout_for(axis.kind, source.drive_profile)
+            layout = layout_for(axis.kind, source.drive_profile, axis.control.position_cycle)
         except (PlantSimError, ValueError, OSError) as exc:  # a profile that cannot be used
             raise RecordingError(f"drive profile {source.drive_profile}: {exc}") from None
     chunks = open_chunks(source.path, source.kind, layout)

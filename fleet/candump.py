@@ -19,6 +19,15 @@ Signals per SYNC: motor position (6064h), load position (60E4h:01 / 60E4h:00, 60
 CiA 406 encoder, or the profile's vendor object), torque (6077h), motor speed (606Ch) and
 the speed set point the bridge sent (60FFh of the drive's RPDO).
 
+Time base: the SYNC frames' time stamps, which a log of a real-time run stamps with the
+wall clock a cycle apart. A log of a run in lockstep (``hil demo``, ``bridge run --clock
+lockstep``) is stamped with the wall clock of a loop that ran many times faster than real time
+(the demo's 7 s in 1.7 s, a median step of 48 µs for a 1 ms cycle): when the layout knows the
+axis's position cycle (:attr:`CandumpLayout.cycle_s`) and the median SYNC step of the first
+block differs from it by more than :data:`CYCLE_TOLERANCE`, the time of a sample is the SYNC
+count times the cycle (0 at the first sample), with one
+:class:`~fleet.errors.TimeBaseWarning` that says which time base was used and why.
+
 A log a kill or a power loss cut short: a last line without its line end is not a frame,
 and a last SYNC cycle with fewer of the layout's PDOs than the cycle before it (the first:
 than the layout has) is where the log was cut, not a sample; both are dropped with one
@@ -59,7 +68,7 @@ from virtual_bus.formats.drive_profile import load_profile
 from virtual_bus.formats.errors import TornTailWarning
 
 from .chunks import CHUNK_ROWS, Chunk, checked, first_line
-from .errors import RecordingError
+from .errors import RecordingError, TimeBaseWarning
 
 MOTOR_POSITION = (Cia402.POSITION_ACTUAL_VALUE, 0)
 TORQUE = (Cia402.TORQUE_ACTUAL_VALUE, 0)
@@ -73,6 +82,9 @@ LOAD_OBJECTS = (
     (Cia406.POSITION_VALUE, 0),
 )
 ObjectKey = tuple[int, int]
+#: A median SYNC step further than this (relative) from the axis's cycle is not a cycle apart:
+#: the log was stamped by a lockstep run, and the SYNC count is its time base.
+CYCLE_TOLERANCE = 0.1
 
 
 @dataclass(frozen=True)
@@ -85,6 +97,8 @@ class CandumpLayout:
     rated_torque_nm: 6076h in N·m; None: from the log's 6076h SDO answer, else torque in ‰;
     0: torque in ‰. load_object: a vendor object carrying the load position.
     drive_id: the drive's node-ID, 0 = the node whose TPDOs are seen most often.
+    cycle_s: the axis's position cycle (the SYNC period), s; None: the log's time stamps are
+    its time base whatever their step (see the module docstring).
     """
 
     motor_increments_per_rev: float = float(1 << 20)
@@ -93,6 +107,7 @@ class CandumpLayout:
     rated_torque_nm: float | None = None
     load_object: ObjectKey | None = None
     drive_id: int = 0
+    cycle_s: float | None = None
 
     @property
     def rad_per_increment(self) -> float:
@@ -104,11 +119,14 @@ class CandumpLayout:
         return 2.0 * math.pi / units
 
 
-def layout_for(kind: AxisKind, profile_path: Path | None = None) -> CandumpLayout:
-    """The contract's scaling for an axis of ``kind``, or a drive profile's over it."""
+def layout_for(
+    kind: AxisKind, profile_path: Path | None = None, cycle_s: float | None = None
+) -> CandumpLayout:
+    """The contract's scaling for an axis of ``kind``, or a drive profile's over it;
+    ``cycle_s``: the axis's position cycle (the time base of a lockstep log)."""
     load = 1e9 if kind is AxisKind.LINEAR else 1e6  # nm per m, µrad per rad (60E4h:01)
     if profile_path is None:
-        return CandumpLayout(load_increments_per_unit=load)
+        return CandumpLayout(load_increments_per_unit=load, cycle_s=cycle_s)
     p = load_profile(profile_path)
     rated = None if p.rated_torque_mnm is None else p.rated_torque_mnm / 1000.0
     return CandumpLayout(
@@ -117,6 +135,7 @@ def layout_for(kind: AxisKind, profile_path: Path | None = None) -> CandumpLayou
         load_increments_per_unit=p.load_increments_per_unit or load,
         rated_torque_nm=rated,
         load_object=p.load_object,
+        cycle_s=cycle_s,
     )
 
 
@@ -237,7 +256,11 @@ class Decoder:
         self.tpdos, self.rpdos = _contract(drive_id)
         self.sdo_tx = sdo_tx_cob_id(drive_id)
         self.rated_torque_nm = layout.rated_torque_nm
-        self.rows: list[tuple[float, float, float, float, float, float]] = []
+        self.rows: list[tuple[float, float, float, float, float, float, int]] = []
+        #: the time base: None until the first block decides it, then True where the SYNC
+        #: count times the cycle is the time (a lockstep log), False for the time stamps
+        self.by_sync_count: bool | None = None
+        self._first_sync: tuple[float, int] | None = None  # (time stamp, SYNC count) of row 0
         self.load_seen = False
         self.syncs = 0
         #: the last cycle was cut short (see the module docstring) and left out
@@ -321,6 +344,7 @@ class Decoder:
                     float(v.get(TORQUE, 0)),
                     v.get(MOTOR_VELOCITY, 0) * lay.rad_s_per_velocity_unit,
                     self._setpoint * lay.rad_s_per_velocity_unit,
+                    self.syncs,
                 )
             )
         self._values = {}
@@ -334,7 +358,7 @@ class Decoder:
         self.rows.clear()
         rated = self.rated_torque_nm
         return Chunk(
-            time_s=a[:, 0],
+            time_s=self._time(a[:, 0], a[:, 6]),
             motor_position_rad=a[:, 1],
             motor_torque=a[:, 3] * (rated / 1000.0) if rated else a[:, 3],
             load_position=a[:, 2] if self.load_seen else None,
@@ -342,6 +366,39 @@ class Decoder:
             motor_speed_rad_s=a[:, 4],
             torque_unit="N·m" if rated else "‰",
         )
+
+    def _time(self, stamps: np.ndarray, counts: np.ndarray) -> np.ndarray:
+        """The samples' times: their SYNC time stamps, or for a lockstep log the SYNC count
+        times the cycle (decided on the first block, with one warning; module docstring)."""
+        cycle = self.layout.cycle_s
+        if self.by_sync_count is None:
+            self._first_sync = (float(stamps[0]), int(counts[0]))
+            self.by_sync_count = False
+            if cycle is not None and stamps.size >= 2:
+                step = float(np.median(np.diff(stamps) / np.diff(counts)))
+                if abs(step / cycle - 1.0) > CYCLE_TOLERANCE:
+                    self.by_sync_count = True
+                    warnings.warn(
+                        f"{self.path}: the SYNC frames are stamped {_duration(step)} apart "
+                        f"(median), the axis's position cycle is {_duration(cycle)}: a log of "
+                        "a run in lockstep (or of another cycle); its time base is the SYNC "
+                        f"count times {_duration(cycle)} (0 s at its first sample), not the "
+                        "time stamps",
+                        TimeBaseWarning,
+                        stacklevel=4,
+                    )
+        if not self.by_sync_count or cycle is None or self._first_sync is None:
+            return stamps
+        return (counts - self._first_sync[1]) * cycle
+
+
+def _duration(seconds: float) -> str:
+    """'1 ms', '48.1 µs'."""
+    if seconds >= 1.0:
+        return f"{seconds:.3g} s"
+    if seconds >= 1e-3:
+        return f"{seconds * 1e3:.3g} ms"
+    return f"{seconds * 1e6:.3g} µs"
 
 
 def read_candump_chunks(path: Path, layout: CandumpLayout = CandumpLayout()) -> Iterator[Chunk]:

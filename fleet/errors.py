@@ -20,3 +20,9 @@ class RecordingError(FleetError, ValueError):
 
 class FleetMapError(FleetError, ValueError):
     """An axis map (``--axes MAP.toml``) that cannot be used as a whole."""
+
+
+class TimeBaseWarning(UserWarning):
+    """A recording whose time stamps are not its time base (a lockstep candump log: the SYNC
+    frames were stamped with the wall clock of a run faster than real time); the monitor
+    reports which time base it used in the recording's ``warning`` column."""

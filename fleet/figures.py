@@ -4,8 +4,12 @@
   against its axis' k_v, with eq. 13's band k_v/4 <= f <= k_v;
 * ``trends.png``: backlash over the recordings' dates for the most urgent axes (the ranked
   list's top 12), fitted growth line, warned axes in red;
-* ``index.html``: the ranked list of axes to inspect, links to figures and tables, the files
-  that could not be read.
+* ``index.html``: the limits the axes were judged against, the ranked list of axes to
+  inspect, links to figures and tables, the files that could not be read.
+
+A figure with nothing to draw (no vibration episode; no recording with a backlash estimate,
+i.e. without reversals measured by both systems) is not written: the page says why instead of
+showing empty axes.
 """
 
 from __future__ import annotations
@@ -17,17 +21,33 @@ from pathlib import Path
 
 import numpy as np
 
+from cmdline.quantity import quantity
 from virtual_bus.atomic import replacing, write_atomic
 
 from .analyse import RecordingResult
 from .episodes import Verdict
-from .ranking import DAYS_PER_MONTH, AxisTrend
+from .ranking import DAYS_PER_MONTH, AxisTrend, Limits
 
 TREND_PANELS = 12
 
 
 def _unit_scale(unit: str) -> tuple[float, str]:
     return (1e6, "µm") if unit == "m" else (1e6, "µrad") if unit == "rad" else (1.0, unit)
+
+
+def has_episodes(results: Sequence[RecordingResult]) -> bool:
+    """Whether :func:`fig4_fleet` has a point to draw."""
+    return any(r.episodes for r in results)
+
+
+def trend_axes(ranked: Sequence[AxisTrend]) -> list[AxisTrend]:
+    """The axes :func:`trends_figure` draws: the most urgent with at least one dated backlash
+    (or lost motion) estimate."""
+    return [
+        t
+        for t in ranked
+        if any(r.date is not None and math.isfinite(t.measure(r)) for r in t.results)
+    ][:TREND_PANELS]
 
 
 def fig4_fleet(results: Sequence[RecordingResult], path: Path) -> Path:
@@ -72,7 +92,7 @@ def trends_figure(ranked: Sequence[AxisTrend], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    shown = [t for t in ranked if any(r.date is not None for r in t.results)][:TREND_PANELS]
+    shown = trend_axes(ranked)
     cols = 3
     rows = max(1, math.ceil(len(shown) / cols))
     fig, axes = plt.subplots(
@@ -105,7 +125,7 @@ def trends_figure(ranked: Sequence[AxisTrend], path: Path) -> Path:
             )
             ax.legend(loc="lower right", fontsize=7)
         growth = (
-            f"{round(t.growth_per_month * scale, 1) + 0.0:+.1f} {unit}/month"
+            f"{_signed(t.growth_per_month, dated[0].load_unit)}/month"
             if math.isfinite(t.growth_per_month)
             else "no trend"
         )
@@ -126,20 +146,34 @@ def trends_figure(ranked: Sequence[AxisTrend], path: Path) -> Path:
     return path
 
 
+def _signed(value: float, unit: str, like: float | None = None) -> str:
+    """'+2.41 µm', '−30 nm', '0 µm' (never '-0.00')."""
+    text = quantity(value, unit, like=like)
+    return text if text.startswith(("−", "0 ")) else "+" + text
+
+
+def _growth(t: AxisTrend, unit: str) -> str:
+    if not math.isfinite(t.growth_per_month):
+        return "–"
+    sigma = quantity(t.growth_sigma, unit, like=t.growth_per_month)
+    return f"{_signed(t.growth_per_month, unit, like=t.growth_sigma)} ± {sigma} per month"
+
+
 def index_html(
     ranked: Sequence[AxisTrend],
     results: Sequence[RecordingResult],
     files: Sequence[Path],
     path: Path,
+    limits: Limits | None = None,
 ) -> Path:
+    limits = limits or Limits()
     bad = [r for r in results if not r.ok]
     ok = [r for r in results if r.ok]
     rows = []
     for i, t in enumerate(ranked, 1):
         latest = t.latest
-        scale, unit = _unit_scale(latest.load_unit if latest else "m")
+        load_unit = latest.load_unit if latest else "m"
         measure = t.measure(latest) if latest else math.nan
-        growth = t.growth_per_month
         rows.append(
             "<tr{cls}><td>{i}</td><td>{a}</td><td>{n}</td><td>{b}</td><td>{g}</td>"
             "<td>{f}</td><td>{reasons}</td></tr>".format(
@@ -147,10 +181,8 @@ def index_html(
                 i=i,
                 a=html.escape(t.axis_id),
                 n=len(t.results),
-                b=f"{measure * scale:.1f} {unit}" if math.isfinite(measure) else "–",
-                g=f"{growth * scale:+.2f} ± {t.growth_sigma * scale:.2f} {unit}/month"
-                if math.isfinite(growth)
-                else "–",
+                b=quantity(measure, load_unit) if math.isfinite(measure) else "–",
+                g=_growth(t, load_unit),
                 f=f"{t.median_frequency_hz:.1f} Hz"
                 if math.isfinite(t.median_frequency_hz)
                 else "–",
@@ -159,6 +191,35 @@ def index_html(
         )
     links = "".join(
         f'<li><a href="{html.escape(p.name)}">{html.escape(p.name)}</a></li>' for p in files
+    )
+    names = {p.name for p in files}
+    figures = []
+    if "fig4_fleet.png" in names:
+        figures.append('<p><img src="fig4_fleet.png" alt="Fig. 4 of the fleet"></p>')
+    else:
+        figures.append(
+            "<p>No vibration episode in any recording: no Fig. 4 of the fleet to draw.</p>"
+        )
+    if "trends.png" in names:
+        figures.append('<p><img src="trends.png" alt="backlash trends"></p>')
+    else:
+        figures.append(
+            "<p>No backlash trend to draw: no dated recording has a backlash estimate (it "
+            "needs reversals measured by both the motor and the load measuring system).</p>"
+        )
+    unit = ok[0].load_unit if ok else "m"
+    rotary = " (µrad on a rotary axis)" if unit == "m" else ""
+    judged = (
+        "<ul>"
+        f"<li>backlash limit: {quantity(limits.backlash, unit)}{rotary} "
+        "(<code>--backlash-limit</code>): an axis whose latest backlash is larger is "
+        "listed;</li>"
+        f"<li>growth limit: {quantity(limits.growth_per_month, unit)}/month{rotary} "
+        "(<code>--growth-limit</code>): an axis whose backlash grows faster, the least-squares "
+        "slope over at least 3 dated recordings, 2σ above zero, is listed;</li>"
+        "<li>vibration: an episode of the paper's detector (Fig. 5) whose frequency lies in "
+        "eq. 13's band k_v/4 ≤ f ≤ k_v of its axis file, in the latest recording of an "
+        "axis.</li></ul>"
     )
     bad_rows = "".join(f"<li><code>{html.escape(r.error)}</code></li>" for r in bad)
     page = f"""<!doctype html>
@@ -172,14 +233,15 @@ tr.warn td {{ background: #fde8e6; }} img {{ max-width: 100%; border: 1px solid 
 <p>{len(ok)} recordings of {len(ranked)} axes analysed, {len(bad)} could not be read.
 Vibration episodes: the paper's detector (Fig. 5) run over each recording; band verdict:
 eq. 13 (k_v/4 ≤ f ≤ k_v); backlash: lost motion at reversals less the elastic wind-up.</p>
+<h2>Judged against</h2>
+{judged}
 <h2>Axes to inspect first</h2>
 <table><tr><th>rank</th><th>axis</th><th>recordings</th><th>latest backlash</th>
 <th>growth</th><th>vibration</th><th>reasons</th></tr>
 {"".join(rows)}
 </table>
 <h2>Figures</h2>
-<p><img src="fig4_fleet.png" alt="Fig. 4 of the fleet"></p>
-<p><img src="trends.png" alt="backlash trends"></p>
+{"".join(figures)}
 <h2>Files</h2><ul>{links}</ul>
 <h2>Recordings that could not be read</h2><ul>{bad_rows or "<li>none</li>"}</ul>
 </body></html>

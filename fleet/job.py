@@ -67,17 +67,22 @@ def monitor(
 
     run_fleet(discovery.sources, sink, workers=workers, scheduler=scheduler)
     results = tuple(sorted(collected, key=lambda r: r.path))
-    ranked = tuple(trends(results, limits or Limits()))
+    limits = limits or Limits()
+    ranked = tuple(trends(results, limits))
     files: list[Path] = []
     files += write_table(recording_rows(results), RECORDING_COLUMNS, out / "recordings")
     files += write_table(episode_rows(results), EPISODE_COLUMNS, out / "episodes")
     files += write_table(axis_rows(ranked), AXIS_COLUMNS, out / "axes")
     if figures:
-        from .figures import fig4_fleet, index_html, trends_figure
+        from .figures import fig4_fleet, has_episodes, index_html, trend_axes, trends_figure
 
-        files.append(fig4_fleet(results, out / "fig4_fleet.png"))
-        files.append(trends_figure(ranked, out / "trends.png"))
-        files.append(index_html(ranked, results, files, out / "index.html"))
+        for stale in ("fig4_fleet.png", "trends.png"):  # a figure with nothing to draw
+            (out / stale).unlink(missing_ok=True)  # leaves no older run's figure behind
+        if has_episodes(results):
+            files.append(fig4_fleet(results, out / "fig4_fleet.png"))
+        if trend_axes(ranked):
+            files.append(trends_figure(ranked, out / "trends.png"))
+        files.append(index_html(ranked, results, files, out / "index.html", limits))
     return FleetRun(results, ranked, tuple(files), time.perf_counter() - t0)
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cmdline.quantity import quantity
 from virtual_bus.atomic import replacing
 
 from .analyse import RecordingResult
@@ -171,13 +172,20 @@ def trends(results: Sequence[RecordingResult], limits: Limits) -> list[AxisTrend
         ]
         t.median_frequency_hz = float(np.median(freqs)) if freqs else math.nan
         latest_measure = t.measure(t.latest) if t.latest is not None else math.nan
+        unit = t.latest.load_unit if t.latest is not None else "m"
         reasons = []
         if t.vibrating:
             reasons.append(f"vibrates in band at {t.median_frequency_hz:.1f} Hz")
         if t.growth_warning:
-            reasons.append("backlash grows")
+            reasons.append(
+                f"backlash grows {quantity(t.growth_per_month, unit)}/month, limit "
+                f"{quantity(limits.growth_per_month, unit)}/month"
+            )
         if math.isfinite(latest_measure) and latest_measure > limits.backlash:
-            reasons.append("backlash above limit")
+            reasons.append(
+                f"backlash {quantity(latest_measure, unit)} above the limit of "
+                f"{quantity(limits.backlash, unit)}"
+            )
         if t.bad_files:
             reasons.append(f"{t.bad_files} unreadable recording(s)")
         t.reasons = tuple(reasons)

@@ -67,7 +67,10 @@ class Source:
 
     @property
     def axis_id(self) -> str:
-        """``MACHINE/AXIS``, the key of the per-axis trends."""
+        """``MACHINE/AXIS``, the key of the per-axis trends; the file's name where its path
+        names neither (a file given directly)."""
+        if not (self.machine or self.axis):
+            return self.path.name
         return f"{self.machine or '?'}/{self.axis or '?'}"
 
 

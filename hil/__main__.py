@@ -19,7 +19,7 @@ from plant_sim.errors import PlantSimError
 from regulator.errors import RegulatorError
 
 PROG = "python -m hil"
-COMMANDS = ("demo", "bench", "tune", "freqresp", "sweep", "contour")
+COMMANDS = ("demo", "bench", "tune", "freqresp", "sweep", "contour", "plot")
 DESCRIPTION = (
     "Hardware in the loop without hardware: the bridge (python -m bridge) closing the loop "
     "over CANopen against the simulated CiA 402 drive (python -m plant_sim drive)."
@@ -29,9 +29,9 @@ FAILURES = (*BRIDGE_FAILURES, cli.Failure((PlantSimError, RegulatorError)))
 
 def main(argv: Sequence[str] | None = None) -> int:
     if (code := cli.missing_extra(PROG, SIM_MODULES, "sim")) is not None:
-        return code
+        return code  # before the SDO client's logging is touched
     quiet_sdo_client_logging()
-    return cli.main(PROG, DESCRIPTION, cli.load_commands("hil", COMMANDS), argv, FAILURES)
+    return cli.run_package("hil", DESCRIPTION, COMMANDS, argv, FAILURES)
 
 
 if __name__ == "__main__":

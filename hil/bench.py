@@ -165,6 +165,7 @@ def run_bench(
     host_beside: bool = True,
     socketcan: str | None = None,
     fmu: AxisSource | None = None,
+    scope: bool = False,
 ) -> dict[str, object]:
     """Every figure of ``hil bench`` (module docstring); ``fmu``: lockstep also with this FMU as
     the drive's plant, in the same run as the kernel's (``lockstep_fmu``)."""
@@ -223,6 +224,7 @@ def run_bench(
             drive_cpu=drive_cpu,
             host_beside=host_beside,
             socketcan=socketcan,
+            scope=scope,
         )
         r["load_average_1_5_15"] = [round(x, 2) for x in load]
         results["realtime"] = r

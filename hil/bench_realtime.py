@@ -38,6 +38,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import dataclasses
+import json
 import math
 import os
 import shutil
@@ -45,7 +46,9 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+import urllib.request
 from collections.abc import Iterator
 from enum import Enum
 from pathlib import Path
@@ -59,6 +62,7 @@ from bridge.interpolator import Move
 from bridge.loopstats import Timing, summary
 from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
+from bridge.scope import Scope
 from bridge.timing import RealTimePacer
 from regulator import RegulatorConfig
 from virtual_bus import BusConfig, Interface, open_bus
@@ -270,13 +274,20 @@ def _measure(
     pacer = bridge.pacer
     rate_hz = 1.0 / pacer.cycle_s
     before: dict[str, object] = {}
-    if host is not None:
-        print(f"bench: cyclictest first, {cycles / rate_hz:g} s (the host's floor in this run)")
-        before = host_latency_now(host, rate_hz, cycles / rate_hz, pacer.spin_s + pacer.late_s)
-    applied = apply_realtime(rt)
-    for line in applied:
-        print(f"bench: {line}")
-    floor = host_floor() if host is None else {}  # cyclictest measured the host instead
+    floor: dict[str, float] = {}
+    # the bridge serves its heartbeat until its loop starts, as between runs: the drive
+    # watches it (1016h, 250 ms) and would otherwise stop the axis (EMCY 8130h) while
+    # cyclictest runs or the real-time options are applied (locking the memory takes longer
+    # than 250 ms), and the loop would be timed in STOPPED
+    with bridge.serving():
+        if host is not None:
+            print(f"bench: cyclictest first, {cycles / rate_hz:g} s (the host's floor in this run)")
+            before = host_latency_now(host, rate_hz, cycles / rate_hz, pacer.spin_s + pacer.late_s)
+        applied = apply_realtime(rt)
+        for line in applied:
+            print(f"bench: {line}")
+        if host is None:  # else cyclictest measured the host
+            floor = host_floor()
     steal0 = host_steal_s()
     wall0, cpu0, thread0 = time.perf_counter(), time.process_time(), time.thread_time()
     n = bridge.run(until=lambda b: b.cycle_index >= cycles)
@@ -298,6 +309,10 @@ def _measure(
     }
 
 
+#: How often the bench's scope reader polls, s (the page's poll, bridge/scope_page/scope.js).
+SCOPE_POLL_S = 0.2
+
+
 def realtime_run(
     axis: AxisConfig,
     seconds: float,
@@ -309,11 +324,13 @@ def realtime_run(
     spin_s: float | None = None,
     host_beside: bool = True,
     socketcan: str | None = None,
+    scope: bool = False,
 ) -> dict[str, object]:
     """One real-time run (module docstring); returns its figures. ``spin_s``: the pacer's
     clock polling before each SYNC (None: its default). ``host_beside``: cyclictest beside
     the loop where it can run (:func:`host_latency_plan`). ``socketcan``: the drive process and
-    the bridge on that SocketCAN interface instead of udp_multicast in a namespace."""
+    the bridge on that SocketCAN interface instead of udp_multicast in a namespace. ``scope``:
+    the live scope on (:mod:`bridge.scope`), read by a thread that polls it as its page does."""
     rt = rt or RealTimeOptions()
     axis = axis_at_rate(axis, rate_hz)
     params = bench_params(axis)
@@ -364,6 +381,13 @@ def realtime_run(
             bridge.gc_control = gc_control
             bridge.busy_poll = rt.busy_poll
         _queue_moves(bridge, params, seconds)
+        live = None
+        if scope:
+            live = Scope(0, stream=sys.stdout)
+            live.attach(bridge, None)
+            stack.callback(live.close)
+            reader = _ScopeReader(live.url)
+            stack.callback(reader.stop)
         bridge.timing = Timing(capacity=cycles + 64)  # no array grows during the run
         drive_cpu0 = _proc_cpu_s(drive_pid) if drive_pid is not None else 0.0
         plan = host_latency_plan(rt) if host_beside else None
@@ -382,9 +406,46 @@ def realtime_run(
         result["stopped"] = bridge.controller.state is BridgeState.STOPPED
         result["stop_message"] = bridge.controller.stop_message
         result["binding_floor"] = binding_floor(result)
+        if live is not None:
+            result["scope"] = {
+                "samples_handed": live.pushed,
+                "samples_dropped": live.dropped,
+                "reads": reader.reads,
+                "samples_read": reader.samples,
+            }
         if rt.rt_priority is not None:  # back to ordinary scheduling for the tear-down
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     return result
+
+
+class _ScopeReader:
+    """A client of the scope doing what its page does: ``GET /data?after=SEQ`` every
+    :data:`SCOPE_POLL_S`, in a thread of the bench's process (the JSON work it causes is
+    the bridge process's, as with a browser)."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.reads = 0
+        self.samples = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._poll, name="scope-reader", daemon=True)
+        self._thread.start()
+
+    def _poll(self) -> None:
+        after = 0
+        while not self._stop.wait(SCOPE_POLL_S):
+            try:
+                with urllib.request.urlopen(f"{self.url}data?after={after}") as answer:
+                    doc = json.load(answer)
+            except OSError:
+                return  # the scope has closed
+            after = doc["last_seq"]
+            self.reads += 1
+            self.samples += len(doc["samples"]["seq"])
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
 
 
 def binding_floor(r: dict[str, object]) -> str:

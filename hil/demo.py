@@ -14,15 +14,19 @@ simulation with the same one-cycle PDO delay.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from bridge.cycle import BridgeState
 from bridge.errors import BridgeError
+from bridge.node import Bridge
 from bridge.params import BridgeParams
 from cmdline.progress import Progress, silent
+from cmdline.quantity import percent, quantity, resolved
 from plant_sim.fmu.arguments import AxisSource
 from plant_sim.paper.outputs import (
     SETTLE_AFTER_DISTURBANCE_S as SETTLE_S,
@@ -38,6 +42,7 @@ from plant_sim.paper.outputs import (
 from plant_sim.paper.scenarios import SectionX
 from plant_sim.physics.model import AxisPlant, KernelOptions
 from plant_sim.physics.simulate import References, simulate
+from plant_sim.physics.warm import warm_up
 from regulator import RegulatorConfig
 from virtual_bus import Interface
 from virtual_bus.formats.axis import AxisConfig
@@ -107,8 +112,10 @@ def bus_runs(
     prefix: str = "",
     progress: Progress | None = None,
     label: str = "",
+    watch: Callable[[Bridge], None] | None = None,
 ) -> tuple[dict[str, Trace], dict[str, object]]:
-    """Both runs of section X over the bus; traces and per-run bridge figures."""
+    """Both runs of section X over the bus; traces and per-run bridge figures. ``watch``:
+    called with each run's bridge (the live scope)."""
     progress = progress or silent()
     traces: dict[str, Trace] = {}
     info: dict[str, object] = {}
@@ -131,6 +138,7 @@ def bus_runs(
                 trace_path=out_dir / f"{prefix}{name}.csv",
                 bus_log_path=out_dir / f"{prefix}bus_{name}.log",
                 plant=plant,
+                watch=watch,
             )
         finally:
             plant.close()
@@ -207,11 +215,12 @@ def run_demo(
     interface: Interface = Interface.VIRTUAL,
     progress: Progress | None = None,
     source: AxisSource | None = None,
+    watch: Callable[[Bridge], None] | None = None,
 ) -> dict[str, object]:
     """Everything ``python -m hil demo`` does; returns summary.json's content (its
     "files" lists every file written). ``source``: the plant (default: the compiled kernel
     of ``axis``; an FMU). An axis the bridge or the physics cannot run is refused before
-    ``out_dir`` is made."""
+    ``out_dir`` is made. ``watch``: called with each bus run's bridge (``--scope``)."""
     source = source or AxisSource(axis, axis_name)
     reg = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
     BridgeParams.for_axis(axis, reg)  # the bridge's scaling limits
@@ -219,9 +228,21 @@ def run_demo(
         AxisPlant(axis)  # the physics' limits (substeps)
     progress = progress or silent()
     out_dir.mkdir(parents=True, exist_ok=True)
+    progress.stage(
+        "loading the compiled simulator and bridge cycle (numba): a first run compiles them, "
+        "about a minute on two busy cores"
+    )
+    progress.stage(warm_up(axis, kernel=source.model is None).sentence())
     scenario = SectionX()
     runs, info = bus_runs(
-        source, axis, out_dir, scenario, interface, progress=progress, label="axis as given: "
+        source,
+        axis,
+        out_dir,
+        scenario,
+        interface,
+        progress=progress,
+        label="axis as given: ",
+        watch=watch,
     )
     extra: dict[str, object] = {
         "axis_file": axis_name,
@@ -258,7 +279,7 @@ def run_demo(
         extra["files_written"] = [*more.get("files_written", []), *as_given_files, *logs]  # type: ignore[misc]
         progress.stage(f"the axis as given shows no limit cycle: both runs again, {why}")
         runs, variant_info = bus_runs(
-            source, axis, out_dir, scenario, interface, progress=progress, label=label
+            source, axis, out_dir, scenario, interface, progress=progress, label=label, watch=watch
         )
         extra["bridge"] = {
             "bus": interface.value,
@@ -274,20 +295,58 @@ def run_demo(
     return write_paper_outputs(out_dir, runs, axis, scenario, extra)
 
 
-def print_summary(summary: dict[str, object], out_dir: Path) -> None:
-    keys = ("band_hz", "runs", "p2p_reduction")
-    print(json.dumps({k: summary[k] for k in keys if k in summary}, indent=2))
+def summary_lines(summary: Mapping[str, Any]) -> list[str]:
+    """The demo's result as an engineer reads it: what vibrated, at what frequency, how far,
+    in µm or mm (summary.json holds the same in SI units)."""
+    unit = str(summary.get("load_unit", "m"))
+    band = summary["band_hz"]
+    p0, p1 = summary["p2p_window_s"]
+    f0, f1 = summary.get("frequency_window_s", (p0, p1))
     bridge = summary.get("bridge", {})
-    runs = bridge.get("runs", {}) if isinstance(bridge, dict) else {}
+    lines = [
+        f"section X over the {bridge.get('bus', '?')} bus, {bridge.get('time_mode', '?')}: "
+        f"eq. 13 band {band[0]:g}–{band[1]:g} Hz (k_v = {summary['kv_per_s']:g} 1/s); "
+        f"peak to peak over {p0:g}–{p1:g} s, frequency over {f0:g}–{f1:g} s"
+    ]
+    names = {"ordinary": "ordinary control (Fig. 8)", "regulated": "with the regulator (Fig. 9)"}
+    runs = summary["runs"]
     for name, run in runs.items():
+        f = run["dominant_frequency_hz"]
+        where = "in the band" if run["in_band"] else "outside the band"
+        amplitude = quantity(run["vibration_amplitude"], unit)
+        vib = (
+            f"vibrates at {f:.3g} Hz ({where}), amplitude {amplitude}"
+            if f is not None
+            else f"no vibration (amplitude {amplitude})"
+        )
+        p2p = quantity(run["p2p_following_error"], unit)
+        if name == "regulated" and summary.get("p2p_reduction") is not None:
+            p2p += f" ({percent(-100 * summary['p2p_reduction'])})"
+        lines.append(
+            f"  {names.get(name, name)}: {vib}; following error {p2p} peak to peak; "
+            f"standstill error {resolved(run['final_standstill_error'], unit)}; "
+            f"β max {run['max_beta_rad_s']:.3g} rad/s, λ min {run['min_lambda']:.3g}"
+        )
+    for name, run in (bridge.get("runs") or {}).items():
         cmp = run["offline_comparison"]
-        print(
-            f"{name}: {run['cycles']} cycles at {run['cycles_per_s']:.0f}/s, "
-            f"missed TPDOs {run['pdo_counters']['missed']}; vs offline: following error "
-            f"{cmp['max_following_error_difference']:.3g}, beta "
-            f"{cmp['max_beta_difference_rad_s']:.3g} rad/s, lambda "
+        lines.append(
+            f"  {name} over the bus: {run['cycles']} cycles at {run['cycles_per_s']:.0f} "
+            f"cycles/s, missed TPDOs {run['pdo_counters']['missed']}; against the offline run: "
+            f"following error within {quantity(cmp['max_following_error_difference'], unit)}, "
+            f"β within {cmp['max_beta_difference_rad_s']:.3g} rad/s, λ within "
             f"{cmp['max_lambda_difference']:.3g}"
         )
+    return lines
+
+
+def print_summary(summary: dict[str, object], out_dir: Path, as_json: bool = False) -> None:
+    """The human summary (:func:`summary_lines`) on stdout, or with ``as_json`` summary.json's
+    content; then the note and the line naming the files."""
+    if as_json:
+        print(json.dumps(summary, indent=2))
+        return
+    for line in summary_lines(summary):
+        print(line)
     if "finding" in summary:
         print(f"note: {summary['finding']}")
     print(files_line(out_dir, summary))

@@ -195,8 +195,10 @@ def run_references(
     bus_log_path: Path | None = None,
     fault: FaultConfig | None = None,
     plant: Plant | None = None,
+    watch: Callable[[Bridge], None] | None = None,
 ) -> ReferenceRun:
-    """:func:`play_references` in a fresh :func:`simulated_axis` (lockstep)."""
+    """:func:`play_references` in a fresh :func:`simulated_axis` (lockstep). ``watch``:
+    called with the bridge before the references play (the live scope, bridge/scope.py)."""
     with simulated_axis(
         axis,
         params,
@@ -207,4 +209,6 @@ def run_references(
         bus_log_path=bus_log_path,
         plant=plant,
     ) as sim:
+        if watch is not None:
+            watch(sim.bridge)
         return play_references(sim, refs)

@@ -7,7 +7,7 @@ bridge and the kernel run); the set point computed at SYNC k takes effect at SYN
 delay). The plant is anything with
 ``advance(speed_setpoint_rad_s, disturbance_nm)`` and the readings ``motor_position_rad``,
 ``motor_speed_rad_s``, ``load_position``, ``motor_torque_nm``
-(:class:`plant_sim.plant.SteppedAxis`): the compiled kernel's
+(:class:`regulator.loop.SteppedAxis`): the compiled kernel's
 :class:`plant_sim.physics.model.AxisPlant`, an FMU's :class:`plant_sim.fmu.FmuPlant`, or the
 tests' independent plant.
 """
@@ -21,12 +21,11 @@ import numpy as np
 
 from bridge.commission.session import Recording
 from bridge.params import BridgeParams
-from plant_sim.plant import SteppedAxis
 from regulator import RegulatorConfig, cycle
-from regulator.loop import play
+from regulator.loop import SteppedAxis, play
 from regulator.tuning import MotionProfile, Record, Runner, SafetyLimits, safety_stop
 
-#: What the loop closes around (:class:`plant_sim.plant.SteppedAxis`).
+#: What the loop closes around (:class:`regulator.loop.SteppedAxis`).
 Plant = SteppedAxis
 
 

@@ -40,18 +40,11 @@ SIM_MODULES = ("numba", "matplotlib")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    if (code := cli.missing_extra(PROG, SIM_MODULES, "sim")) is not None:
-        return code
-    return cli.main(
-        PROG,
-        DESCRIPTION,
-        cli.load_commands("plant_sim", COMMANDS),
-        argv,
-        failures=(
-            cli.Failure((RealTimeRefused,), cli.EXIT_FAILURE, "refused"),
-            cli.Failure((PlantSimError, FormatError, OSError)),
-        ),
+    failures = (
+        cli.Failure((RealTimeRefused,), cli.EXIT_FAILURE, "refused"),
+        cli.Failure((PlantSimError, FormatError, OSError)),
     )
+    return cli.run_package("plant_sim", DESCRIPTION, COMMANDS, argv, failures, needs=SIM_MODULES)
 
 
 if __name__ == "__main__":

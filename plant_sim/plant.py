@@ -2,12 +2,13 @@
 
 Two boundaries, from the narrow to the wide:
 
-* :class:`SteppedAxis` -- what a position loop closes around (the bridge's loop without a bus,
-  :mod:`hil.loop`): ``advance(speed_setpoint_rad_s, disturbance_nm)`` and the four readings.
-  Structural: any object with these members is one (the tests' independent plants are).
+* :class:`regulator.loop.SteppedAxis` -- what a position loop closes around (the bridge's
+  loop without a bus, :mod:`hil.loop`): ``advance(speed_setpoint_rad_s, disturbance_nm)`` and
+  the four readings; defined once on the regulator's floor, whose :func:`regulator.loop.play`
+  steps it.
 * :class:`Plant` -- what the simulated CiA 402 drive (:mod:`plant_sim.drive`) runs behind its
-  object dictionary: a :class:`SteppedAxis` plus the axis file it is configured from, the
-  power stage off (coasting), the torque limit of 6072h and a failure that faults the drive.
+  object dictionary: a stepped axis plus the axis file it is configured from, the power stage
+  off (coasting), the torque limit of 6072h and a failure that faults the drive.
   Two implementations fill its hooks: the compiled kernel
   (:class:`plant_sim.physics.model.AxisPlant`) and an FMI 2.0 co-simulation FMU
   (:class:`plant_sim.fmu.FmuPlant`).
@@ -22,29 +23,10 @@ from __future__ import annotations
 import abc
 import math
 from collections.abc import Callable
-from typing import Protocol
 
 import numpy as np
 
 from virtual_bus.formats.axis import AxisConfig
-
-
-class SteppedAxis(Protocol):
-    """An axis a position loop closes around (module docstring)."""
-
-    def advance(self, speed_setpoint_rad_s: float, disturbance_nm: float = 0.0) -> None: ...
-
-    @property
-    def motor_position_rad(self) -> float: ...
-
-    @property
-    def motor_speed_rad_s(self) -> float: ...
-
-    @property
-    def load_position(self) -> float: ...
-
-    @property
-    def motor_torque_nm(self) -> float: ...
 
 
 class Plant(abc.ABC):

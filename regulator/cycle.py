@@ -84,40 +84,13 @@ def position_cycle(
     ``difference`` (load units, motor / k_r - load since enable); ``check_limits``: this
     cycle's values are measured (not extrapolated over a lost frame), so the limits apply.
     ``c``: the cycle block; ``det``: the detector state of :mod:`regulator.core`. Returns a
-    code; the set point is ``c[Y_OMEGA_R]``."""
-    if not (math.isfinite(x_ref) and math.isfinite(x_fb)):
-        return NOT_FINITE
-    kr = c[C_KR]
-    omega_s = kr * speed
-    omega_c = core.position_command(x_ref, x_fb, c[C_KV], kr) + c[C_VFF] * omega_s
-    error = x_ref - x_fb
-    c[Y_OMEGA_S] = omega_s
-    c[Y_OMEGA_C] = omega_c
-    c[Y_ERROR] = error
-    if check_limits:
-        if abs(error) > c[C_FE_LIMIT]:
-            return FOLLOWING_ERROR
-        if abs(difference) > c[C_DISC_LIMIT]:
-            return DISCREPANCY
-        if (x_fb < c[C_POS_MIN] and speed <= 0.0) or (x_fb > c[C_POS_MAX] and speed >= 0.0):
-            return POSITION_LIMIT
-    u = omega_s - omega_c
-    if not (math.isfinite(omega_s) and math.isfinite(omega_c) and math.isfinite(u)):
-        return NOT_FINITE
-    beta = core.detector_step(det, int(c[C_REG_N]), c[C_CYCLE], c[C_REG_TV], c[C_REG_TF], u)
-    # eq. 15; off: lambda 1, and regulated_speed returns omega_c exactly (the same expression
-    # either way, so that a compiler that may reorder arithmetic does it alike in both)
-    lam = core.switching_factor(beta, c[C_REG_BT]) if c[C_REG_ON] != 0.0 else 1.0
-    omega_r = core.regulated_speed(omega_s, omega_c, lam)
-    limit = c[C_SPEED_LIMIT]
-    if omega_r > limit:
-        omega_r = limit
-    elif omega_r < -limit:
-        omega_r = -limit
-    c[Y_BETA] = beta
-    c[Y_LAMBDA] = lam
-    c[Y_OMEGA_R] = omega_r
-    return OK
+    code; the set point is ``c[Y_OMEGA_R]``. It is :func:`measure` then :func:`apply` with
+    this axis's own lambda (eq. 15 with the regulator off: lambda 1, and
+    :func:`regulator.core.regulated_speed` returns omega_c exactly)."""
+    code = measure(c, det, x_ref, speed, x_fb, difference, check_limits)
+    if code == OK:
+        apply(c, c[Y_LAMBDA])
+    return code
 
 
 def measure(
@@ -132,9 +105,8 @@ def measure(
     """The first half of :func:`position_cycle` for axes whose eq. 15 shares one lambda (the
     contour axes of section II.A, which must keep identical dynamics, eq. 1): steps 1-3 up to
     this axis's own ``lambda = exp(-beta / beta_T)`` (1 with the regulator off), stored in
-    ``c[Y_LAMBDA]`` with beta; the set point is left to :func:`apply`. The same operations in
-    the same order as :func:`position_cycle`: ``measure`` then ``apply(c, c[Y_LAMBDA])`` is
-    :func:`position_cycle` bit for bit (tests/regulator/test_cycle.py)."""
+    ``c[Y_LAMBDA]`` with beta; the set point is left to :func:`apply`. :func:`position_cycle`
+    is ``measure`` then ``apply(c, c[Y_LAMBDA])``, so the law is written once."""
     if not (math.isfinite(x_ref) and math.isfinite(x_fb)):
         return NOT_FINITE
     kr = c[C_KR]

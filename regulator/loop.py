@@ -38,8 +38,10 @@ COLUMNS = (
 )
 
 
-class Axis(Protocol):
-    """What :func:`play` steps (module docstring)."""
+class SteppedAxis(Protocol):
+    """An axis a position loop closes around, what :func:`play` steps (module docstring).
+    Structural: any object with these members is one (the kernel's plant, an FMU's, the
+    reference plants); :class:`plant_sim.plant.Plant` is one plus what a drive needs."""
 
     def advance(self, speed_setpoint_rad_s: float, disturbance_nm: float = 0.0) -> None: ...
 
@@ -72,7 +74,7 @@ class LoopRun:
 
 
 def play(
-    axis: Axis,
+    axis: SteppedAxis,
     position: np.ndarray,
     speed: np.ndarray,
     block: Any,
@@ -141,7 +143,7 @@ class AxesRun:
 
 
 def play_axes(
-    axes: Sequence[Axis],
+    axes: Sequence[SteppedAxis],
     positions: Sequence[np.ndarray],
     speeds: Sequence[np.ndarray],
     blocks: Sequence[Any],

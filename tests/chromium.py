@@ -171,10 +171,12 @@ def open_page(
     width: int = 1280,
     height: int = 900,
     full_page: bool = True,
+    prefix: Sequence[str] = (),
 ) -> PageCheck:
     """Load ``url`` in a fresh headless Chromium, wait for its load event, evaluate
     ``expressions`` (JavaScript; their JSON values in :attr:`PageCheck.values`) and take a
-    screenshot (the whole page, or the first ``width`` x ``height`` pixels)."""
+    screenshot (the whole page, or the first ``width`` x ``height`` pixels). ``prefix``: a
+    command the browser runs under (``ip netns exec NAME``: a page served in a namespace)."""
     binary = chromium_binary()
     if binary is None:
         raise ChromiumError(chromium_problem() or "no chromium")
@@ -195,7 +197,13 @@ def open_page(
             os.dup2(high_w, 4)
 
         proc = subprocess.Popen(
-            [binary, *FLAGS, f"--user-data-dir={profile}", f"--window-size={width},{height}"],
+            [
+                *prefix,
+                binary,
+                *FLAGS,
+                f"--user-data-dir={profile}",
+                f"--window-size={width},{height}",
+            ],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
             stderr=log,

@@ -25,10 +25,10 @@ def main(
     probe: HostProbe | None = None,
 ) -> int:
     """Run the CLI; ``runner`` and ``probe`` are injectable for tests."""
-    return cli.main(
-        PROG,
+    return cli.run_package(
+        "virtual_bus",
         "Set up or probe the CAN bus shared by the bridge and the simulated drive.",
-        cli.load_commands("virtual_bus", COMMANDS),
+        COMMANDS,
         argv,
         failures=(
             cli.Failure((VcanSetupError, GuestError), cli.EXIT_FAILURE),

@@ -6,6 +6,7 @@ global state unless :meth:`BusConfig.from_python_can_config` is called explicitl
 
 from __future__ import annotations
 
+import ipaddress
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from enum import Enum
@@ -110,6 +111,8 @@ class BusConfig:
                 )
             if self.interface in (Interface.AUTO, Interface.SOCKETCAN):
                 check_ifname(self.channel)
+            if self.interface == "udp_multicast":
+                _check_multicast_group(self.channel)
         if isinstance(self.bitrate, bool) or not isinstance(self.bitrate, int):
             raise BusConfigError(f"bitrate must be an int in bit/s, got {self.bitrate!r}")
         if self.bitrate not in CIA301_BITRATES:
@@ -185,3 +188,17 @@ class BusConfig:
 
 def _opt_str(value: object) -> str | None:
     return None if value is None else str(value)
+
+
+def _check_multicast_group(channel: str) -> None:
+    """python-can's udp_multicast channel is a multicast group address (IPv4 224.0.0.0/4 or
+    IPv6 ff00::/8), not an interface name: ``can0`` would reach the resolver and fail there."""
+    try:
+        group = ipaddress.ip_address(channel)
+    except ValueError:
+        group = None
+    if group is None or not group.is_multicast:
+        raise BusConfigError(
+            f"udp_multicast channel {channel!r} is not a multicast group address; allowed: "
+            "an IPv4 address in 224.0.0.0/4 (e.g. 239.74.163.2) or an IPv6 one in ff00::/8"
+        )

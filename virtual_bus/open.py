@@ -109,13 +109,25 @@ def resolve(config: BusConfig, probe: HostProbe = _SYSTEM_PROBE) -> BusChoice:
 #: about 240 frames (measured on Linux 7.2): a node that is not scheduled for a moment while
 #: a flood of frames comes (another process sending 1,000-2,000 frames/s beside a busy
 #: loop on one CPU) loses the rest without seeing them, and its frame guard cannot count
-#: them. 2 MiB hold about 2,400; the kernel caps the request at net.core.rmem_max.
-SOCKETCAN_RCVBUF_BYTES = 2 * 1024 * 1024
+#: them. 8 MiB (candump's ``-r`` in the tests) hold about 9,600 frames, several seconds of a
+#: flood (with 2 MiB, 2,400 frames, the guest's drive once counted 343 frames fewer than a
+#: 3,400-frame cangen flood certainly sent it, with two CPU hogs on the host). SO_RCVBUF is
+#: capped at net.core.rmem_max (4 MiB in the guest, 212,992 on a stock kernel); a process
+#: with CAP_NET_ADMIN goes past it with SO_RCVBUFFORCE, as candump does.
+SOCKETCAN_RCVBUF_BYTES = 8 * 1024 * 1024
+#: Linux's SO_RCVBUFFORCE (asm-generic/socket.h); Python's socket module does not name it.
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 
 
 def _deepen_receive_queue(bus: can.BusABC) -> None:
+    """Ask for :data:`SOCKETCAN_RCVBUF_BYTES` of receive buffer: forced where the process may
+    (root, CAP_NET_ADMIN), else as much as net.core.rmem_max allows."""
     sock = getattr(bus, "socket", None)
-    if sock is not None:
+    if sock is None:
+        return
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, SOCKETCAN_RCVBUF_BYTES)
+    except OSError:  # EPERM: not privileged
         with contextlib.suppress(OSError):
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, SOCKETCAN_RCVBUF_BYTES)
 
@@ -180,6 +192,11 @@ def _open_udp(config: BusConfig) -> can.BusABC:
         ) from exc
 
 
+#: What python-can's back-ends log while a bus opens that says nothing of why it failed
+#: (pcan: its timestamps without the ``uptime`` package), left out of the error.
+UNRELATED_DRIVER_NOTES = ("uptime library not available",)
+
+
 @contextmanager
 def _driver_messages() -> Iterator[list[str]]:
     """Collect what python-can's back-ends log at WARNING or above while a bus opens (e.g.
@@ -188,7 +205,9 @@ def _driver_messages() -> Iterator[list[str]]:
 
     class _Collect(logging.Handler):
         def emit(self, record: logging.LogRecord) -> None:
-            said.append(record.getMessage())
+            message = record.getMessage()
+            if not message.startswith(UNRELATED_DRIVER_NOTES):
+                said.append(message)
 
     logger = logging.getLogger("can")
     handler = _Collect(logging.WARNING)

@@ -94,7 +94,9 @@ def echo_of(bus: can.BusABC) -> Echo:
     return Echo.FLAGGED if getattr(bus, "receive_own_messages", False) else Echo.NONE
 
 
-def _key(msg: can.Message) -> tuple[int, bool, bool, int, bytes]:
+def frame_key(msg: can.Message) -> tuple[int, bool, bool, int, bytes]:
+    """What tells two frames apart on the wire (identifier, kind, length, data): a frame
+    read back equals one sent when their keys are equal."""
     return (
         msg.arbitration_id,
         msg.is_extended_id,
@@ -139,7 +141,7 @@ class EchoSortingBus(can.BusABC):
         super().__init__(channel=None)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        entry = (_key(msg), _copy(msg))
+        entry = (frame_key(msg), _copy(msg))
         # queued and sent under one lock: the queue is in the order the kernel got the frames
         # from the node's threads (the loop, the SDO client, the heartbeat), and the echo may
         # be read by another thread at once
@@ -188,7 +190,7 @@ class EchoSortingBus(can.BusABC):
 
     def _echo(self, msg: can.Message) -> None:
         """An echo of a frame sent: the frames sent before it whose echo was lost, then it."""
-        key = _key(msg)
+        key = frame_key(msg)
         lost = []
         with self._lock:
             if any(sent_key == key for sent_key, _ in self._pending):

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cmdline import cli
 from virtual_bus import BusConfig
@@ -15,8 +17,13 @@ from ..errors import BridgeError, DriveSetupError
 from ..interpolator import Move, load_move_file, parse_move
 from ..master import DriveSetup
 from ..node import DEFAULT_OVERRUN_LIMIT, BridgeConfig
-from ..timing import TimeMode
+from ..timing import DEFAULT_LOCKSTEP_WAIT_S, TimeMode
 from .common import add_clock_argument, default_store_path, regulated_axis
+
+if TYPE_CHECKING:
+    from ..node import Bridge
+    from ..run import RunOptions
+    from ..status import Watch
 
 NAME = "run"
 HELP = "run the bridge against a drive on a CAN interface (real time)"
@@ -38,6 +45,9 @@ def _move(text: str) -> Move:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..scope import add_scope_argument
+    from ..status import DEFAULT_TARGET_TOLERANCE
+
     rates = "bit/s, a CiA 301 rate (default 1000000: one axis at 1 ms is 44 %% of it)"
     cli.add_can_bus(parser, bitrate_help=rates)
     parser.add_argument(
@@ -96,14 +106,50 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help=f"stop the axis after N overrunning cycles in a row (default {DEFAULT_OVERRUN_LIMIT})",
     )
+    parser.add_argument(
+        "--lockstep-wait",
+        type=cli.bounded_float(1e-3, 60.0),
+        default=DEFAULT_LOCKSTEP_WAIT_S,
+        metavar="S",
+        help="--clock lockstep: wall seconds to wait for a TPDO before counting it missed "
+        f"(default {DEFAULT_LOCKSTEP_WAIT_S:g}; more for a slow simulated drive or a busy "
+        "host, up to 60)",
+    )
+    parser.add_argument(
+        "--target-tolerance",
+        type=cli.positive_float,
+        default=DEFAULT_TARGET_TOLERANCE * 1e6,
+        metavar="UM",
+        help="the verdict calls the target reached when the load ends this close to it, µm "
+        f"(µrad on a rotary axis; default {DEFAULT_TARGET_TOLERANCE * 1e6:g})",
+    )
+    add_scope_argument(parser, "a live scope of the run")
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print the result and its verdict as one JSON document (SI units) on stdout",
+    )
+
+
+def _both(first: Watch, second: Watch) -> Watch:
+    def watch(bridge: Bridge, options: RunOptions) -> None:
+        first(bridge, options)
+        second(bridge, options)
+
+    return watch
 
 
 def run(args: argparse.Namespace) -> int:
     from ..run import RunOptions, run_bridge
+    from ..scope import Scope
+    from ..status import RunTalk
 
     moves = list(args.move)
     if args.move_file is not None:
         moves += load_move_file(args.move_file)
+    talk = RunTalk(target_tolerance=args.target_tolerance / 1e6)
+    scope = None if args.scope is None else Scope(args.scope, stream=talk.stream)
+    watch = talk.attach if scope is None else _both(talk.attach, scope.attach)
     options = RunOptions(
         bus=BusConfig(interface=args.interface, channel=args.channel, bitrate=args.bitrate),
         axis=regulated_axis(args.axis),
@@ -125,7 +171,11 @@ def run(args: argparse.Namespace) -> int:
         time_mode=TimeMode(args.clock),
         realtime=realtime_options(args),
         overrun_limit=args.overrun_limit,
+        lockstep_wait_s=args.lockstep_wait,
+        watch=watch,
     )
+    if args.clock != TimeMode.LOCKSTEP.value and args.lockstep_wait != DEFAULT_LOCKSTEP_WAIT_S:
+        raise cli.UsageError("--lockstep-wait applies to --clock lockstep only")
     if not moves and args.seconds is None:
         raise cli.UsageError("give --move, --move-file or --seconds (otherwise it never ends)")
     store = options.bridge.store_path
@@ -138,7 +188,15 @@ def run(args: argparse.Namespace) -> int:
             "interrupted during the start-up (the drive's supervision of the bridge, where it "
             "was configured, stops it)"
         ) from None
+    finally:
+        talk.close()
+        if scope is not None:
+            scope.close()
     drive = args.drive_id
+    if args.json:
+        print(json.dumps(talk.document(result), ensure_ascii=False))
+        return 0 if result.stop_message == "none" and result.stopped_safely else 1
+    print(talk.verdict(result).line())
     print(
         f"{result.cycles} cycles; state {result.state.name}; missed TPDOs "
         f"{result.missed_tpdos}, late {result.late_tpdos}, skipped SYNCs {result.skipped_syncs}"

@@ -80,7 +80,7 @@ def _timeout(text: str) -> float:
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
-    cli.add_can_bus(parser, 500_000, "bit/s (DCF Baudrate)")
+    cli.add_can_bus(parser, bitrate_help="bit/s (DCF Baudrate; default 1000000, as run and probe)")
     parser.add_argument("--node-id", type=cli.node_id, required=True, help="the node (1..127)")
     parser.add_argument(
         "--eds", type=Path, help="EDS (or DCF) of the node; default: identified by 1000h/1018h"
@@ -253,7 +253,10 @@ def _set(args: argparse.Namespace) -> int:
         before = access.read(var) if readable else None
         access.write(var, value)
         if readable:
-            print(f"{display(var, access.read(var))} (was {value_text(var, before)})")  # type: ignore[arg-type]
+            was = value_text(var, before)
+            if var.data_type in dt.UNSIGNED_TYPES:  # decimal first, as display() shows the new one
+                was = f"{int(before)} ({was})"  # type: ignore[arg-type]
+            print(f"{display(var, access.read(var))} (was {was})")  # type: ignore[arg-type]
         else:
             print(f"{key_text(var)} {var.name} <- {value_text(var, value)}")
     return 0

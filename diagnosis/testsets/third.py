@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from diagnosis.effects import MODELS, Effect
-from diagnosis.synthetic import Case, GeneratedCase, case_list
+from diagnosis.synthetic import Case, GeneratedCase, case_list, trapezoid
 from plant_sim.physics.simulate import References
 from reference_plants.third.plant import Physics, axis_of, simulate
 from virtual_bus.formats.axis import AxisConfig
@@ -251,22 +251,6 @@ PERTURBED = (
 # ----------------------------------------------------------------------------------------
 # the NC program
 # ----------------------------------------------------------------------------------------
-def _rapid(distance: float, speed: float, accel: float, dt: float) -> np.ndarray:
-    """Speed samples of a rapid: trapezoid, acceleration steps (no jerk limit)."""
-    d = abs(distance)
-    v = min(speed, math.sqrt(d * accel))
-    t_acc = v / accel
-    t_total = d / v + t_acc
-    t = np.arange(0.0, t_total, dt)
-    prof = np.clip(
-        np.minimum.reduce([t / t_acc * v, np.full_like(t, v), (t_total - t) / t_acc * v]), 0.0, None
-    )
-    travel = prof.sum() * dt
-    if travel > 0.0:
-        prof *= d / travel
-    return math.copysign(1.0, distance) * prof
-
-
 def _feed(distance: float, speed: float, accel: float, dt: float) -> np.ndarray:
     """Speed samples of a feed move: acceleration a raised cosine (jerk-limited)."""
     d = abs(distance)
@@ -306,7 +290,7 @@ def program(
             t = np.arange(0.0, float(rng.integers(1, 4)) / freq, cycle_s)
             prof = amp * 2.0 * math.pi * freq * np.sin(2.0 * math.pi * freq * t)
         elif kind == "rapid":
-            prof = _rapid(target - x, motion.rapid, motion.accel, cycle_s)
+            prof = trapezoid(target - x, motion.rapid, motion.accel, cycle_s)
         elif kind == "feed":
             speed = float(rng.choice(motion.feeds[1:-1]))
             prof = _feed(target - x, speed, motion.accel * float(rng.uniform(0.3, 1.0)), cycle_s)

@@ -22,7 +22,10 @@ from pathlib import Path
 from cmdline import cli
 from cmdline.progress import Progress
 from plant_sim.errors import SchedulerError
+from plant_sim.physics.warm import warm_up
 from virtual_bus.atomic import write_atomic
+from virtual_bus.formats.axis import load_axis
+from virtual_bus.shipped import PAPER_AXIS
 
 from ..demo_fleet import FleetSpec, generate
 from ..errors import FleetError, FleetMapError
@@ -115,8 +118,19 @@ def run(args: argparse.Namespace) -> int:
             raise FleetError("--demo-size: every count must be >= 1")
         fleet = args.out / "demo_fleet"
         total = spec.machines * spec.axes_per_machine * spec.recordings_per_axis
+        progress.stage(
+            "loading the simulator's compiled kernel (numba): a first run compiles it, about a "
+            "minute on two busy cores"
+        )
+        progress.stage(warm_up(load_axis(PAPER_AXIS), bridge=False).sentence())
         with progress.bar(total, f"simulating a demo fleet into {fleet}", "recording") as sim:
-            generate(fleet, spec, progress=lambda done, n: sim.update())
+
+            def simulated(done: int, n: int) -> None:
+                sim.update()
+                if done % spec.recordings_per_axis == 0 and not progress.terminal:
+                    sim.set_description(f"simulated {done} of {n} recordings")
+
+            generate(fleet, spec, progress=simulated)
         paths = [fleet]
         truth_file = fleet / "truth.json"
         axis_map = load_axis_map(fleet / "axes.toml")

@@ -67,6 +67,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="real time: without cyclictest before the loop (default with --rt-priority and "
         "--cpu where cyclictest is installed: the host's floor in the same run)",
     )
+    parser.add_argument(
+        "--scope",
+        action="store_true",
+        help="real time: with the live scope on (bridge run --scope) and a reader polling it "
+        "as its page does (docs/scope.md)",
+    )
     add_realtime_options(parser)
     add_fmu_arguments(parser)
 
@@ -108,5 +114,6 @@ def run(args: argparse.Namespace) -> int:
         host_beside=not args.no_host_latency,
         socketcan=args.socketcan,
         fmu=fmu_source,
+        scope=args.scope,
     )
     return 0

@@ -18,12 +18,16 @@ HELP = "the paper's section X over the bus with the simulated drive"
 DESCRIPTION = (
     "Runs section X (Fig. 8 and Fig. 9) with the bridge closing the loop over CANopen against "
     "the simulated drive; writes the summary.json and figures of `python -m plant_sim paper`, "
-    "the traces and the bus logs. With --fmu the drive's plant is the FMU (its data sheet "
+    "the traces and the bus logs, and prints a summary in µm/mm (--json: summary.json's "
+    "content). With --fmu the drive's plant is the FMU (its data sheet "
     "configures the bridge unless --axis is given)."
 )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from bridge.scope import add_scope_argument
+
+    add_scope_argument(parser, "the live scope of each bus run while the demo runs")
     parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
     parser.add_argument(
         "--axis",
@@ -36,6 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="virtual",
         help="virtual (default) or socketcan on vcan0",
     )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print summary.json's content instead of the summary in µm/mm (it is written to "
+        "OUT/summary.json either way)",
+    )
     add_fmu_arguments(parser)
 
 
@@ -44,7 +54,25 @@ def run(args: argparse.Namespace) -> int:
 
     source = simulated_source(args, args.axis)
     interface = Interface.VIRTUAL if args.bus == "virtual" else Interface.SOCKETCAN
-    progress = Progress(f"bridge {NAME}", quiet=args.quiet)
-    summary = run_demo(args.out, source.axis, source.name, interface, progress, source)
-    print_summary(summary, args.out)
+    progress = Progress(f"hil {NAME}", quiet=args.quiet)
+    scope = None
+    if args.scope is not None:
+        from bridge.scope import Scope
+
+        scope = Scope(args.scope, command="hil demo")
+        scope.start()
+    try:
+        summary = run_demo(
+            args.out,
+            source.axis,
+            source.name,
+            interface,
+            progress,
+            source,
+            watch=None if scope is None else scope.follow,
+        )
+    finally:
+        if scope is not None:
+            scope.close()
+    print_summary(summary, args.out, as_json=args.json)
     return 0

@@ -43,18 +43,36 @@ class RunSummary:
     min_lambda: float
 
 
+def p2p_window(scenario: SectionX = SectionX()) -> tuple[float, float]:
+    """The window of the peak-to-peak following error, s: [P2P_START_S, stop). One window for
+    summary.json's ``p2p_following_error``, the figures' zoom A' and its title."""
+    return P2P_START_S, scenario.stop_s
+
+
+def frequency_window(scenario: SectionX = SectionX()) -> tuple[float, float]:
+    """The window of the frequency analysis, s: from SETTLE_AFTER_DISTURBANCE_S after the
+    disturbance to the stop of the interpolator."""
+    return scenario.disturbance_end_s + SETTLE_AFTER_DISTURBANCE_S, scenario.stop_s
+
+
+def p2p_window_mask(t: np.ndarray, scenario: SectionX = SectionX()) -> np.ndarray:
+    start, end = p2p_window(scenario)
+    return (t >= start) & (t < end)
+
+
 def summarize(trace: Trace, axis: AxisConfig, scenario: SectionX = SectionX()) -> RunSummary:
     """Metrics of one section X run from its trace."""
     t = trace.time
     e = trace["position_reference"] - trace["load_position"]
     cycle = axis.control.position_cycle
-    after = (t >= scenario.disturbance_end_s + SETTLE_AFTER_DISTURBANCE_S) & (t < scenario.stop_s)
+    f0, f1 = frequency_window(scenario)
+    after = (t >= f0) & (t < f1)
     # below half the band's lower edge (k_v/8) lies drift (the error returning to eq. 1), not
     # vibration
     verdict = condition_monitoring(e[after], cycle, axis.control.kv, f_min_hz=axis.control.kv / 8)
     floor = max(VIBRATION_FLOOR, VIBRATION_FLOOR_OF_BACKLASH * (axis.mechanics.backlash or 0.0))
     vibrating = verdict.amplitude >= floor and not math.isnan(verdict.frequency_hz)
-    p2p = (t >= P2P_START_S) & (t < scenario.stop_s)
+    p2p = p2p_window_mask(t, scenario)
     return RunSummary(
         dominant_frequency_hz=verdict.frequency_hz if vibrating else None,
         vibration_amplitude=verdict.amplitude,
@@ -74,11 +92,12 @@ def plot_section_x(
     with_lambda: bool,
     scenario: SectionX = SectionX(),
     note: str | None = None,
-) -> None:
+) -> str:
     """Fig. 8 / Fig. 9 panels: A following errors (eq. 1 vs load vs motor) over the run,
     A' the same zoomed onto the time after the disturbance (where the limit cycle lives, µm),
     B disturbance torque, C vibration level β, D switching factor λ (regulated run).
-    ``note``: what differs from the paper, written under the title."""
+    ``note``: what differs from the paper, written under the title. Returns the zoom's title
+    (it states the window and the peak-to-peak of summary.json)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -106,9 +125,9 @@ def plot_section_x(
     a.set_ylabel(f"A  error [{unit}]")
     # legend above the panel: it covers no data
     a.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize=7, frameon=False)
-    z0 = scenario.disturbance_end_s + SETTLE_AFTER_DISTURBANCE_S
-    z1 = scenario.stop_s
-    # up to two position cycles before the interpolator stops (eq. 1 drops to 0 there)
+    z0, z1 = p2p_window(scenario)
+    # drawn up to two position cycles before the interpolator stops (eq. 1 drops to 0 there);
+    # the peak-to-peak in the title is summary.json's, over the whole window
     zoom = (t >= z0) & (t < z1 - 2 * axis.control.position_cycle)
     a.axvspan(z0, z1, color="0.92", zorder=0)
     a.annotate("A'", xy=((z0 + z1) / 2, 0.02), xycoords=("data", "axes fraction"), fontsize=8)
@@ -122,13 +141,12 @@ def plot_section_x(
     z.set_ylim(lo - pad, hi + pad)
     z.set_xlim(z0, z1)
     z.set_ylabel(f"A' error [{fine}]")
-    p2p = float(np.ptp(e_load[zoom])) * 1e6
-    z.set_title(
+    p2p = float(np.ptp(e_load[p2p_window_mask(t, scenario)])) * 1e6
+    zoom_title = (
         f"A' zoom on {z0:g}–{z1:g} s (shaded in A): load following error peak-to-peak "
-        f"{p2p:.3g} {fine}",
-        fontsize=8,
-        loc="left",
+        f"{p2p:.3g} {fine} (summary.json's p2p_following_error)"
     )
+    z.set_title(zoom_title, fontsize=8, loc="left")
     axes[2].plot(t, trace["disturbance"], color="C3", lw=1.0)
     axes[2].set_ylabel("B  disturbance\n[N m at motor]")
     axes[3].plot(t, trace["beta"], color="C2", lw=1.0)
@@ -149,6 +167,7 @@ def plot_section_x(
     with replacing(path) as tmp:
         fig.savefig(tmp, dpi=110, format=path.suffix[1:])
     plt.close(fig)
+    return zoom_title
 
 
 def changes_note(axis_file: str, changes: Mapping[str, float] | None) -> str | None:
@@ -178,9 +197,11 @@ def write_paper_outputs(
     summary: dict[str, object] = {
         "band_hz": list(vibration_band_hz(axis.control.kv)),
         "kv_per_s": axis.control.kv,
+        "load_unit": axis.load_unit,
         "backlash": axis.mechanics.backlash,
         "scenario": asdict(scenario),
-        "p2p_window_s": [P2P_START_S, scenario.stop_s],
+        "p2p_window_s": list(p2p_window(scenario)),
+        "frequency_window_s": list(frequency_window(scenario)),
         "runs": {},
     }
     figures = {"ordinary": ("fig8.png", False), "regulated": ("fig9.png", True)}

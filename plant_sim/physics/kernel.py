@@ -51,6 +51,7 @@ import types
 import numba
 import numpy as np
 
+from regulator import compiled as _compiled
 from regulator import core as _core
 from regulator import cycle as _cycle
 
@@ -71,19 +72,13 @@ vars(_kernel_core).update(
 )
 
 
-def _kernel_copy(function: types.FunctionType, name: str) -> types.FunctionType:
-    """``function`` of :mod:`regulator.cycle` for this kernel: regulator.core's functions
-    inlined, compiled with the kernel's flags. A code object of its own name: numba's cache
-    keys a function by its code's name, not its compile options, and the bridge compiles the
-    same source exactly (regulator.compiled); numba also compiles a callee with its caller's
-    fastmath, so the kernel must not call the bridge's compiled functions."""
-    code = function.__code__.replace(co_name=name, co_qualname=name)
-    return types.FunctionType(code, dict(vars(_cycle)) | {"core": _kernel_core}, name)
-
-
-#: regulator.cycle's one composition of the position cycle, compiled with the kernel (one call
-#: per position cycle: numba resolves an inlined function's globals in its caller's)
-position_cycle = _njit(_kernel_copy(_cycle.position_cycle, "kernel_position_cycle"))
+#: regulator.cycle's one composition of the position cycle, compiled with the kernel's flags
+#: against the inlined core above (regulator.compiled.cycle_copy; its own code names, since the
+#: bridge compiles the same source exactly, and numba compiles a callee with its caller's
+#: fastmath, so the kernel must not call the bridge's compiled functions). One call per
+#: position cycle; measure and apply are inlined into it.
+_kernel_cycle = _compiled.cycle_copy(_njit, _inline, _kernel_core, prefix="kernel_")
+position_cycle = _kernel_cycle.position_cycle
 _CYCLE_OK = _cycle.OK
 _Y_OMEGA_S, _Y_OMEGA_C, _Y_OMEGA_R = _cycle.Y_OMEGA_S, _cycle.Y_OMEGA_C, _cycle.Y_OMEGA_R
 _Y_BETA, _Y_LAMBDA = _cycle.Y_BETA, _cycle.Y_LAMBDA

@@ -14,12 +14,11 @@ import numpy as np
 
 from regulator import RegulatorConfig, cycle
 from regulator.core import detector_state_size
-from regulator.loop import play
+from regulator.loop import SteppedAxis, play
 from virtual_bus.formats.axis import AxisConfig, PositionFeedback
 from virtual_bus.formats.trace import RECORDED_COLUMNS, Trace
 
 from ..errors import ScenarioError
-from ..plant import SteppedAxis
 from . import kernel as K
 from .model import KernelOptions, build_params, initial_state
 

@@ -102,6 +102,12 @@ RUN = run_on("nobody-here")
         (["config", "get", "--interface", "virtual", "--channel", "x", "2000h"], "--node-id"),
         (["config", "fly"], "invalid choice"),
         ([*RUN, "--seconds", "1", "--store", "/nonexistent-dir/s.json"], "nonexistent"),
+        ([*RUN, "--seconds", "1", "--lockstep-wait", "0"], "allowed 0.001..60"),
+        ([*RUN, "--seconds", "1", "--lockstep-wait", "61"], "allowed 0.001..60"),
+        (
+            [*RUN, "--seconds", "1", "--clock", "realtime", "--lockstep-wait", "2"],
+            "--lockstep-wait applies to --clock lockstep only",
+        ),
     ],
 )
 def test_bad_arguments_exit_2_with_one_line(

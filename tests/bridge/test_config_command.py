@@ -235,7 +235,7 @@ def test_dump_is_a_dcf_canopen_imports_with_the_node_values(
     code, out, _ = run(nodes.argv("dump", node_id, "--out", str(dcf)), capsys)
     assert code == 0 and f"wrote {dcf}" in out
     od = canopen.import_od(str(dcf))  # no node-ID given: [DeviceComissioning] NodeID
-    assert (od.node_id, od.bitrate) == (node_id, 500_000)
+    assert (od.node_id, od.bitrate) == (node_id, 1_000_000)  # run and probe's default
     node = nodes.node(node_id)
     compared = 0
     for var in variables(node.object_dictionary):
@@ -407,7 +407,7 @@ def test_store_commands_through_set(nodes: Nodes, capsys: pytest.CaptureFixture[
     assert code == 0 and nodes.store.is_file()
     code, out, _ = run(nodes.argv("set", 1, "1011h:01", "load"), capsys)
     assert code == 0 and not nodes.store.exists()
-    assert out == "1011h:01 Restore all default parameters = 1 (0x00000001) (was 0x00000001)\n"
+    assert out == "1011h:01 Restore all default parameters = 1 (0x00000001) (was 1 (0x00000001))\n"
 
 
 def test_the_node_is_identified_without_eds(

@@ -59,6 +59,15 @@ def test_store_restart_and_read_back(
         sdo[0x1010][1].raw = SAVE
         assert store.is_file()
         assert [p.name for p in tmp_path.iterdir()] == [store.name]  # no temporary left
+    # the values as a person reads them beside the raw ones; an edit there changes nothing
+    doc = json.loads(store.read_text())
+    readable = doc["readable"]
+    assert readable["2000h:00"] == "Position gain kv = 30 1/s", readable
+    assert readable["1016h:01"].endswith(" = node 2 within 400 ms"), readable
+    assert set(readable) <= set(doc["objects"])
+    assert all(" = " in text for text in readable.values())
+    readable["2000h:00"] = "Position gain kv = 99 1/s"
+    store.write_text(json.dumps(doc))
     with idle_bridge(bus_pair[0], store) as restarted:
         assert sdo["Position gain kv"].raw == 30.0
         assert sdo[0x2014][2].raw == pytest.approx(0.25)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import struct
 import threading
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -29,17 +28,14 @@ from bridge.node import Bridge
 from bridge.params import BridgeParams
 from bridge.timing import LockstepPacer
 from hil.harness import simulated_axis
-from plant_sim.drive import DriveConfig, State402, TimeMode
-from plant_sim.drive.process import DriveProcessConfig, serve
+from plant_sim.drive import State402
 from tests.adapt_helpers import FAULHABER_CO_EDS, TECHNOSOFT_EDS, YIYOU_EDS, local_rig
+from tests.bridge.conftest import BOUND_S, SIM_EDS
 from tests.bridge_helpers import AXIS, controller
 from tests.paths import ROOT
 from virtual_bus.formats.drive_profile import DriveProfile, load_profile
 
-SIM_EDS = ROOT / "config" / "drive.eds"
 BRIDGE_ENTRY = (1 << 16) | 250  # node 1, 250 ms: 2.5 x the bridge's 100 ms heartbeat
-#: Backstop of the waits below (a thread that hangs; never reached when all is well).
-BOUND_S = 120.0
 
 
 def _configured(eds: Path, profile: DriveProfile | None = None, before: dict | None = None):
@@ -173,56 +169,15 @@ def test_the_end_of_a_run_mid_move_ramps_the_motor_down() -> None:
 
 
 @pytest.fixture
-def served() -> Iterator[tuple[str, threading.Event, list]]:
-    """The simulated drive served with the real-time clock in a thread (its own clock runs
-    when SYNC stops) on a fresh virtual channel; yields the channel, the stop flag and the
-    drive (once booted)."""
-    channel = f"halt-{uuid.uuid4().hex[:10]}"
-    bus = can.Bus(interface="virtual", channel=channel)
-    stop, booted = threading.Event(), threading.Event()
-    drives: list = []
-    errors: list[BaseException] = []
-
-    def body() -> None:
-        config = DriveProcessConfig(AXIS, drive=DriveConfig(time_mode=TimeMode.REAL_TIME))
-        try:
-            serve(config, bus, stop, ready=lambda d: (drives.append(d), booted.set()))
-        except BaseException as exc:
-            errors.append(exc)
-            booted.set()
-
-    thread = threading.Thread(target=body, name="drive")
-    thread.start()
-    try:
-        assert booted.wait(BOUND_S) and not errors, errors
-        yield channel, stop, drives
-    finally:
-        stop.set()
-        thread.join(BOUND_S)
-        bus.shutdown()
-    assert not errors, errors
-
-
-@pytest.fixture
-def tool(served: tuple[str, threading.Event, list]) -> Iterator[canopen.RemoteNode]:
-    """A CANopen tool beside the bridge: python canopen's master of drive 2."""
-    network = canopen.Network()
-    network.NOTIFIER_CYCLE = 0.02
-    network.connect(interface="virtual", channel=served[0])
-    try:
-        node = network.add_node(2, str(SIM_EDS))
-        node.sdo.RESPONSE_TIMEOUT = BOUND_S
-        yield node
-    finally:
-        network.disconnect()
-
-
-@pytest.fixture
 def bridge(served: tuple[str, threading.Event, list]) -> Iterator[Bridge]:
     bus = can.Bus(interface="virtual", channel=served[0])
     # lockstep, waiting 10 ms for a missing TPDO (not 250): a PDO loss comes within the
     # drive's consumer time of the bridge's heartbeat, which is once a cycle
     b = Bridge(bus, BridgeParams.for_axis(AXIS), AXIS.kind, LockstepPacer(0.001, wait_s=0.01))
+    # a 4 s heartbeat (the drive watches it within 10 s): these tests provoke the stop paths;
+    # with 100 ms, a host that starves this lockstep bridge for 250 ms (seen with both CPUs
+    # busy) lets the drive's consumer stop the axis first (EMCY 8130h), a path of its own test
+    b.nmt.set_period_ms(4000)
     try:
         b.start()
         b.controller.queue_move(Move(0.05, 0.02))

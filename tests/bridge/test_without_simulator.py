@@ -91,7 +91,9 @@ def test_a_bridge_run_without_a_drive_fails_in_one_line_without_the_simulator() 
     argv = ["run", "--interface", "virtual", "--channel", "nobody-home", "--seconds", "0.01"]
     done = _run(*argv, "--axis", str(ROOT / "config" / "paper_axis.toml"))
     assert done.returncode == 1, done.stderr
-    assert done.stderr.count("\n") == 1 and "drive start-up failed" in done.stderr
+    *plan, error = done.stderr.splitlines()  # the start-up plan (bridge.status), the failure
+    assert "drive start-up failed" in error and "drive start-up failed" not in "".join(plan)
+    assert plan and all(line.startswith("bridge run: ") for line in plan), plan
 
 
 def test_the_blocker_really_blocks() -> None:

@@ -1,4 +1,5 @@
-"""Candidate effects: names and keys, starting values from the data (effects.py)."""
+"""Candidate effects: names and keys, starting values from the data, the registry
+(effects.py)."""
 
 from __future__ import annotations
 
@@ -10,10 +11,12 @@ import pytest
 from diagnosis.effects import (
     EFFECT_KEYS,
     GENERIC_EXPERIMENT,
+    MODELS,
     Effect,
     effects_in,
     experiment_for,
 )
+from diagnosis.matrix import SHORT
 from diagnosis.parameters import contact_antiresonance, options_for
 from diagnosis.screen import effect_values
 from diagnosis.synthetic import slide_axis
@@ -114,3 +117,15 @@ def test_an_unphysical_estimate_adds_nothing() -> None:
     ):
         values, why = effect_values(effect, est, axis)
         assert values == {} and why, effect
+
+
+def test_the_registry_holds_every_effect_once_with_its_own_column() -> None:
+    """Every member of Effect has one model in the registry, whose confusion-matrix column
+    (matrix.SHORT) is its own: two effects with one column could not be told apart there."""
+    assert set(MODELS) == set(Effect)
+    assert all(m.effect is e for e, m in MODELS.items())
+    shorts = [m.short for m in MODELS.values()]
+    assert len(set(shorts)) == len(shorts) and "none" not in shorts
+    assert {e.value: SHORT[e.value] for e in Effect} == {
+        e.value: m.short for e, m in MODELS.items()
+    }

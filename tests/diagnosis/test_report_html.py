@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cmdline.quantity import factor, number, quantities, quantity
 from diagnosis.__main__ import main
 from diagnosis.closed_loop import GateStep
 from diagnosis.commands import diagnose as diagnose_command
 from diagnosis.effects import MODELS, Effect, experiment_for
 from diagnosis.outcome import Diagnosis
-from diagnosis.quantity import factor, number, quantities, quantity
 from diagnosis.report import REPORT_FILES, write_report
 from diagnosis.report_html import page
 from diagnosis.results import Ambiguity

@@ -8,6 +8,7 @@ compared with what the simulated drive's physics says at the end.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from bridge.interpolator import Move
 from bridge.node import BridgeConfig
 from bridge.params import BridgeParams
 from fleet.candump import CandumpLayout, layout_for, read_candump_chunks
+from fleet.errors import TimeBaseWarning
 from hil.harness import simulated_axis
 from regulator import RegulatorConfig
 from tests.paths import ROOT
@@ -77,3 +79,48 @@ def test_contract_log_decodes_load_and_motor(tmp_path: Path) -> None:
     assert np.ptp(load) == pytest.approx(0.004, rel=0.02)
     # the load follows the motor through the ball screw (k_r) within the backlash
     assert np.max(np.abs(motor / AXIS.transmission_ratio - load)) < 2 * AXIS.mechanics.backlash
+
+
+def _restamped(log: Path, out: Path, cycle_s: float) -> Path:
+    """The same frames stamped as a real-time run would have: one cycle from SYNC to SYNC
+    (the frames after a SYNC a microsecond apart)."""
+    lines, t, syncs = [], 0.0, 0
+    for line in log.read_text().splitlines():
+        if not line.strip():
+            lines.append(line)
+            continue
+        _, iface, frame = line.split(" ", 2)
+        if frame.startswith("080#"):
+            syncs += 1
+            t = 1000.0 + syncs * cycle_s
+        else:
+            t += 1e-6
+        lines.append(f"({t:.6f}) {iface} {frame}")
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+def test_a_lockstep_log_is_timed_by_its_sync_count(tmp_path: Path) -> None:
+    """The in-process bus runs in lockstep, far faster than the 1 ms cycle: the monitor times
+    its samples by the SYNC count (one warning saying so), and gets the same times as from the
+    same frames stamped one cycle apart, where it uses the stamps and warns of nothing."""
+    cycle = AXIS.control.position_cycle
+    log, _, _ = _move_and_log(tmp_path, BridgeConfig())
+    layout = layout_for(AXIS.kind, None, cycle)
+    stamps = np.array([float(ln[1:18]) for ln in log.read_text().splitlines() if "080#" in ln])
+    assert np.median(np.diff(stamps)) < 0.5 * cycle  # the premise: a lockstep log
+    with pytest.warns(TimeBaseWarning, match=r"SYNC count times 1 ms") as caught:
+        lockstep = np.concatenate([c.time_s for c in read_candump_chunks(log, layout)])
+    assert len(caught) == 1
+    np.testing.assert_allclose(np.diff(lockstep), cycle, rtol=1e-9)
+    assert lockstep[0] == 0.0
+    real = _restamped(log, tmp_path / "real.log", cycle)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TimeBaseWarning)
+        stamped = np.concatenate([c.time_s for c in read_candump_chunks(real, layout)])
+    np.testing.assert_allclose(stamped - stamped[0], lockstep, atol=1e-6)
+    # without the axis's cycle the stamps are the time base, as they came
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TimeBaseWarning)
+        raw = np.concatenate([c.time_s for c in read_candump_chunks(log, CandumpLayout())])
+    assert raw[-1] - raw[0] < 0.5 * lockstep[-1]

@@ -17,13 +17,16 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 from hil.__main__ import main
+from hil.plot import PlotSetup, panels
 from tests.command_line import refused_in_one_line
 from tests.paths import ROOT
 from tests.plant_sim.fmu.fmus import edited_copy, family_fmu, model_exchange_only
+from virtual_bus.formats.trace import read_trace
 
 FMU = ["--fmu-param", "seed=0,family=1"]
 
@@ -50,6 +53,17 @@ def test_demo_on_the_fmu_tells_the_papers_story(
     assert runs["regulated"]["offline_comparison"]["max_following_error_difference"] <= 1e-7
     for name in ("fig8.png", "fig9.png", "ordinary.csv", "regulated.csv", "bus_ordinary.log"):
         assert (tmp_path / name).is_file()
+    # `hil plot` on the FMU's trace, without an axis file (load unit m, no band): the
+    # following error is the trace's own, in µm (issue 31 item 2)
+    trace = read_trace(tmp_path / "ordinary.csv")
+    cols = trace.columns
+    plots = {p.ylabel: p for p in panels(trace, PlotSetup("m"))}
+    error = plots["following error, µm"].curves[0].values
+    assert np.allclose(error, (cols["position_reference"] - cols["load_position"]) * 1e6)
+    assert plots["amplitude, µm"].band_hz is None
+    capsys.readouterr()
+    assert main(["plot", str(tmp_path / "ordinary.csv")]) == 0
+    assert "following error" in capsys.readouterr().out
 
 
 def test_freqresp_runs_on_the_fmu(tmp_path: Path) -> None:

@@ -53,6 +53,9 @@ def _bridge_argv(interface: str, channel: str, log: Path, trace: Path) -> list[s
         "0.3",
         "--clock",
         "lockstep",
+        # the exchange is checked here, not how fast a busy host answers (tests/peers/live_bus)
+        "--lockstep-wait",
+        "30",
         "--bus-log",
         str(log),
         "--trace",

@@ -10,7 +10,7 @@ import types
 import numpy as np
 import pytest
 
-from regulator import core, cycle
+from regulator import compiled, core, cycle
 
 KR, KV, CYCLE_S = 100 * math.pi, 25.0, 0.001
 
@@ -79,29 +79,6 @@ def test_the_supervision_decisions(
         assert cycle.position_cycle(c, det, x_ref, speed, x_fb, difference, False) == cycle.OK
 
 
-def test_numba_compiles_it_to_the_same_bits() -> None:
-    """Compiled without fastmath, as the bridge's core compiles it (bridge.cyclecore): every
-    result and the detector state equal Python's over a vibrating run with the regulator on,
-    the feed-forward and the clamp."""
-    numba = pytest.importorskip("numba")
-    jit = numba.njit(cache=False)
-    compiled_core = types.ModuleType("regulator.core (compiled)")
-    for name in ("position_command", "detector_step", "switching_factor", "regulated_speed"):
-        setattr(compiled_core, name, jit(getattr(core, name)))
-    names = dict(vars(cycle)) | {"core": compiled_core}
-    f = jit(types.FunctionType(cycle.position_cycle.__code__, names, "position_cycle"))
-    rng = np.random.default_rng(7)
-    c_py, det_py = fresh(regulator_on=True, velocity_feedforward=0.3, speed_limit_rad_s=50.0)
-    c_nb, det_nb = np.array(c_py), np.array(det_py)
-    for k in range(3000):
-        x_ref = 1e-3 * math.sin(k / 50)
-        x_fb = x_ref - 1e-4 * math.sin(2 * math.pi * 11 * k * CYCLE_S) + 1e-7 * rng.normal()
-        a = cycle.position_cycle(c_py, det_py, x_ref, 0.02, x_fb, 0.0, True)
-        b = f(c_nb, det_nb, x_ref, 0.02, x_fb, 0.0, True)
-        assert a == b
-        assert c_py == c_nb.tolist() and det_py == det_nb.tolist()
-
-
 def _vibrating_inputs(k: int, rng: np.random.Generator) -> tuple[float, float, float]:
     x_ref = 1e-3 * math.sin(k / 50)
     x_fb = x_ref - 1e-4 * math.sin(2 * math.pi * 11 * k * CYCLE_S) + 1e-7 * rng.normal()
@@ -109,27 +86,32 @@ def _vibrating_inputs(k: int, rng: np.random.Generator) -> tuple[float, float, f
 
 
 @pytest.mark.parametrize("regulator_on", [False, True])
-def test_measure_then_apply_own_lambda_is_position_cycle_bit_for_bit(regulator_on: bool) -> None:
-    """The halves a shared lambda needs are the one cycle, split: with each axis's own lambda
-    they give position_cycle's every result and detector state, code for code (stops too)."""
+def test_numba_compiles_it_to_the_same_bits(regulator_on: bool) -> None:
+    """Compiled without fastmath as the bridge's core compiles it (regulator.compiled's
+    cycle_copy: position_cycle calling measure and apply, inlined): every code, result and the
+    detector state equal Python's over a vibrating run with the feed-forward, the clamp, the
+    following-error stop and a non-finite feedback."""
+    numba = pytest.importorskip("numba")
+    jit = numba.njit(cache=False)
+    inline = numba.njit(cache=False, inline="always")
+    compiled_core = types.ModuleType("regulator.core (compiled)")
+    for name in compiled.CORE_FUNCTIONS:
+        setattr(compiled_core, name, jit(getattr(core, name)))
+    f = compiled.cycle_copy(jit, inline, compiled_core, prefix="test_").position_cycle
     kw = dict(regulator_on=regulator_on, velocity_feedforward=0.3, speed_limit_rad_s=50.0)
     kw |= dict(following_error_limit=0.99e-4)  # the peaks of the shake stop it
-    c1, d1 = fresh(**kw)  # type: ignore[arg-type]
-    c2, d2 = fresh(**kw)  # type: ignore[arg-type]
-    rng1, rng2 = np.random.default_rng(11), np.random.default_rng(11)
+    c_py, det_py = fresh(**kw)  # type: ignore[arg-type]
+    c_nb, det_nb = np.array(c_py), np.array(det_py)
+    rng = np.random.default_rng(7)
     codes = set()
     for k in range(3000):
-        x_ref, speed, x_fb = _vibrating_inputs(k, rng1)
+        x_ref, speed, x_fb = _vibrating_inputs(k, rng)
         x_fb = math.nan if k == 2000 else x_fb
-        a = cycle.position_cycle(c1, d1, x_ref, speed, x_fb, 0.0, True)
-        x_ref, speed, x_fb = _vibrating_inputs(k, rng2)
-        x_fb = math.nan if k == 2000 else x_fb
-        b = cycle.measure(c2, d2, x_ref, speed, x_fb, 0.0, True)
-        if b == cycle.OK:
-            cycle.apply(c2, c2[cycle.Y_LAMBDA])
+        a = cycle.position_cycle(c_py, det_py, x_ref, speed, x_fb, 0.0, True)
+        b = f(c_nb, det_nb, x_ref, speed, x_fb, 0.0, True)
         codes.add(a)
         assert a == b
-        assert c1 == c2 and d1 == d2
+        assert c_py == c_nb.tolist() and det_py == det_nb.tolist()
     assert codes == {cycle.OK, cycle.FOLLOWING_ERROR, cycle.NOT_FINITE}  # stops too
 
 

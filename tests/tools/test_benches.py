@@ -65,7 +65,9 @@ def test_the_shipped_registry_names_each_benchmark_once_in_the_readmes_order() -
     assert names == [
         "paper", "paper-2.5ms", "sweep", "bridge-demo", "bridge-demo-fmu", "fmu-sweep",
         "emps-diagnose", "plant_sim-bench", "bridge-bench",
-        "bridge-realtime-1k", "bridge-realtime-2k", "host-latency-1k", "host-latency-2k",
+        "bridge-realtime-1k", "bridge-realtime-2k",
+        "bridge-realtime-scope-1k", "bridge-realtime-scope-2k",
+        "host-latency-1k", "host-latency-2k",
         "monitor",
     ]  # fmt: skip
 
@@ -83,6 +85,9 @@ def test_the_real_time_bench_and_its_host_floor_run_with_the_same_settings(rate_
 
     loop = settings(by_name[f"bridge-realtime-{k}k"].args)
     assert loop == settings(by_name[f"host-latency-{k}k"].args)
+    # the scope's variant is the same run with --scope (docs/scope.md): the difference is its cost
+    scoped = by_name[f"bridge-realtime-scope-{k}k"].args
+    assert [a for a in scoped if a != "--scope"] == list(by_name[f"bridge-realtime-{k}k"].args)
     assert loop == tuple(f"--seconds 30 --rate-hz {rate_hz} --rt-priority 50 --cpu 1".split())
 
 

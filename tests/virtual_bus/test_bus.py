@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import shutil
+import socket
 import subprocess
 import threading
 import uuid
@@ -34,6 +36,7 @@ from virtual_bus import (
     setup_vcan,
 )
 from virtual_bus.__main__ import main
+from virtual_bus.open import SOCKETCAN_RCVBUF_BYTES, _driver_messages
 from virtual_bus.vcan import check_ifname, run_ip
 
 # --------------------------------------------------------------------------- config
@@ -309,6 +312,33 @@ def test_socketcan_choice_reaches_python_can_socketcan_backend() -> None:
     with pytest.raises(OSError) as info:
         open_bus(BusConfig(), VCAN_HOST)
     assert not isinstance(info.value, BusUnavailableError)
+
+
+@pytest.mark.vcan
+def test_a_socketcan_bus_gets_its_receive_buffer_past_rmem_max() -> None:
+    """open_bus asks for SOCKETCAN_RCVBUF_BYTES of receive buffer and, as root (the guest),
+    gets it although net.core.rmem_max is smaller (SO_RCVBUFFORCE, as candump's -r): the
+    kernel reports twice what was set (socket(7)); SO_RCVBUF alone would stop at rmem_max."""
+    rmem_max = int(Path("/proc/sys/net/core/rmem_max").read_text())
+    assert rmem_max < SOCKETCAN_RCVBUF_BYTES  # else this says nothing of the forcing
+    bus = open_bus(BusConfig(interface=Interface.SOCKETCAN, channel="vcan0"))
+    try:
+        got = bus.socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)  # type: ignore[attr-defined]
+    finally:
+        bus.shutdown()
+    assert got == 2 * SOCKETCAN_RCVBUF_BYTES, (got, rmem_max)
+
+
+def test_a_driver_note_unrelated_to_the_failure_is_left_out() -> None:
+    """pcan logs that it lacks the ``uptime`` package while its bus opens; that says nothing of
+    why the bus failed, so the error leaves it out (other driver messages stay)."""
+    with _driver_messages() as said:
+        logging.getLogger("can.pcan").warning(
+            "uptime library not available, timestamps are relative to boot time and not to "
+            "Epoch UTC"
+        )
+        logging.getLogger("can.kvaser").warning("Kvaser canlib is unavailable.")
+    assert said == ["Kvaser canlib is unavailable."]
 
 
 # ---------------------------------------------------------------- frames on the bus

@@ -147,6 +147,31 @@ def test_defaults_are_injected() -> None:
     assert seen == {"runner": "fake"}
 
 
+def test_run_package_refuses_a_missing_extra_in_one_line_before_loading_commands(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A module of the extra not installed: exit 1 and one line naming it and the extra; no
+    command module is imported (this one does not exist: loading it would raise)."""
+    code = cli.run_package(
+        "no_such_package", "d", ("x",), ["x"], needs=("no_such_module_for_the_test",)
+    )
+    assert code == cli.EXIT_FAILURE
+    assert capsys.readouterr().err.splitlines() == [
+        "python -m no_such_package: error: no_such_module_for_the_test not installed: this "
+        "part of the project needs the 'sim' extra (pip install 'backlash-bridge[sim]')"
+    ]
+
+
+def test_run_package_loads_the_package_commands(capsys: pytest.CaptureFixture[str]) -> None:
+    """``python -m virtual_bus``'s commands loaded by run_package: a name that is not one of
+    them is argparse's one line, under the program named after the package."""
+    with pytest.raises(SystemExit) as info:
+        cli.run_package("virtual_bus", "d", ("setup", "probe"), ["nonsense"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("python -m virtual_bus: error: argument COMMAND")
+
+
 # --- progress -----------------------------------------------------------------------------------
 class _Clock:
     def __init__(self) -> None:

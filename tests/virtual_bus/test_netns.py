@@ -74,3 +74,30 @@ def test_inside_a_namespace_frames_cross_and_own_frames_do_not_echo(
 def test_open_bus_refuses_udp_receive_own_messages_on_the_host() -> None:
     with pytest.raises(BusConfigError):
         open_bus(BusConfig(interface="udp_multicast", receive_own_messages=True))
+
+
+GROUPS = """
+from virtual_bus import BusConfig
+from virtual_bus.errors import BusConfigError
+for channel in ("can0", "vcan0", "10.0.0.1", "239.74.163.2", "ff15::7079", "::1", "999.1.1.1"):
+    try:
+        BusConfig(interface="udp_multicast", channel=channel)
+        print(channel, "ok")
+    except BusConfigError as exc:
+        print(channel, "refused:", exc)
+"""
+
+
+def test_a_udp_channel_must_be_a_multicast_group(
+    private_netns: NetworkNamespace, subprocess_env: dict[str, str]
+) -> None:
+    """Inside a namespace (where udp_multicast is allowed) the channel is a multicast group:
+    ``can0`` is refused by the configuration with what is allowed, not by the resolver
+    ("[Errno -3] Temporary failure in name resolution") after the bus was half made."""
+    done = private_netns.run([sys.executable, "-c", GROUPS], timeout_s=60, env=subprocess_env)
+    assert done.returncode == 0, done.stderr
+    said = dict(line.split(" ", 1) for line in done.stdout.splitlines())
+    assert said.pop("239.74.163.2") == "ok" and said.pop("ff15::7079") == "ok"
+    for channel, answer in said.items():
+        assert answer.startswith("refused: udp_multicast channel"), (channel, answer)
+        assert "224.0.0.0/4" in answer and "ff00::/8" in answer

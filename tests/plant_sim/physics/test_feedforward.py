@@ -12,6 +12,7 @@ from scipy.optimize import minimize_scalar
 
 from diagnosis.synthetic import slide_axis
 from plant_sim.physics.simulate import References, simulate
+from tests.plant_sim.physics.axis_docs import small_axis
 from virtual_bus.formats.axis import AxisConfig, PositionFeedback, axis_from_mapping
 from virtual_bus.formats.errors import AxisFileError
 
@@ -124,14 +125,6 @@ def test_sensor_time_offset_shifts_the_reading(offset_s: float) -> None:
     assert np.max(np.abs(b[column][valid] - expected[valid])) < 1e-4 * spread
 
 
-def _doc(**control: object) -> dict[str, object]:
-    return {
-        "axis": {"kind": "linear", "transmission_ratio": 628.3},
-        "mechanics": {"motor_inertia": 1e-4, "load_mass": 25.0},
-        "control": {"kv": 30.0, "ksp": 0.1, **control},
-    }
-
-
 @pytest.mark.parametrize(
     ("key", "value", "allowed"),
     [
@@ -144,14 +137,16 @@ def _doc(**control: object) -> dict[str, object]:
 )
 def test_new_control_keys_refused_out_of_range(key: str, value: float, allowed: str) -> None:
     with pytest.raises(AxisFileError) as info:
-        axis_from_mapping(_doc(**{key: value}))
+        axis_from_mapping(small_axis(**{key: value}))
     msg = str(info.value)
     assert f"control.{key}" in msg and repr(value) in msg and allowed in msg
 
 
 def test_new_control_keys_read() -> None:
     axis = axis_from_mapping(
-        _doc(velocity_feedforward=1.0, acceleration_feedforward=2e-4, sensor_time_offset=-0.002)
+        small_axis(
+            velocity_feedforward=1.0, acceleration_feedforward=2e-4, sensor_time_offset=-0.002
+        )
     )
     c = axis.control
     assert (c.velocity_feedforward, c.acceleration_feedforward, c.sensor_time_offset) == (
@@ -164,7 +159,7 @@ def test_new_control_keys_read() -> None:
 def test_lumped_rigid_model_without_motor_inertia() -> None:
     """motor_inertia = 0 is a lumped rigid model (all inertia in the load); it simulates like
     the same total inertia split between motor and load."""
-    doc = _doc()
+    doc = small_axis()
     doc["mechanics"] = {"motor_inertia": 0.0, "load_mass": 25.0}
     lumped = axis_from_mapping(doc)
     kr = lumped.transmission_ratio
@@ -178,7 +173,7 @@ def test_lumped_rigid_model_without_motor_inertia() -> None:
 
 
 def test_elastic_axis_needs_motor_side_inertia() -> None:
-    doc = _doc()
+    doc = small_axis()
     doc["mechanics"] = {"motor_inertia": 0.0, "load_mass": 25.0, "antiresonance": 500.0}
     with pytest.raises(AxisFileError, match=r"mechanics\.motor_inertia = 0\.0"):
         axis_from_mapping(doc)

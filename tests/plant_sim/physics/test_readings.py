@@ -19,6 +19,7 @@ from plant_sim.physics import kernel as K
 from plant_sim.physics.model import AxisPlant, build_params, initial_state
 from plant_sim.physics.simulate import References
 from regulator.core import detector_state_size
+from tests.plant_sim.physics.axis_docs import small_axis
 from virtual_bus.formats.axis import AxisConfig, PositionFeedback, axis_from_mapping, dump_axis
 from virtual_bus.formats.errors import AxisFileError
 
@@ -188,14 +189,6 @@ def test_a_loop_on_the_scale_holds_the_reading_at_the_reference() -> None:
     assert abs(true - target) > 1e-6  # the error is there to find
 
 
-def _doc(**control: object) -> dict[str, object]:
-    return {
-        "axis": {"kind": "linear", "transmission_ratio": 628.3},
-        "mechanics": {"motor_inertia": 1e-4, "load_mass": 25.0},
-        "control": {"kv": 30.0, "ksp": 0.1, **control},
-    }
-
-
 @pytest.mark.parametrize(
     ("control", "message"),
     [
@@ -216,7 +209,7 @@ def _doc(**control: object) -> dict[str, object]:
 )
 def test_bad_keys_are_refused_naming_them(control: dict[str, float], message: str) -> None:
     with pytest.raises(AxisFileError) as info:
-        axis_from_mapping(_doc(**control))
+        axis_from_mapping(small_axis(**control))
     assert message in str(info.value)
 
 
@@ -231,7 +224,7 @@ def test_the_keys_survive_a_written_file() -> None:
         "scale_error_period": 0.015,
         "scale_error_phase": -1.1,
     }
-    axis = axis_from_mapping(_doc(**values))
+    axis = axis_from_mapping(small_axis(**values))
     again = axis_from_mapping(tomllib.loads(dump_axis(axis)))
     assert again == axis
     assert {k: getattr(again.control, k) for k in values} == values

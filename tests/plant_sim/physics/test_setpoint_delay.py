@@ -17,6 +17,7 @@ from plant_sim.errors import ScenarioError
 from plant_sim.physics import kernel as K
 from plant_sim.physics.model import AxisPlant, KernelOptions, build_params, initial_state
 from plant_sim.physics.simulate import References, simulate
+from tests.plant_sim.physics.axis_docs import small_axis
 from virtual_bus.formats.axis import AxisConfig, axis_from_mapping
 from virtual_bus.formats.errors import AxisFileError
 
@@ -161,14 +162,6 @@ def test_a_disabled_drive_takes_zero_set_points_into_its_delay() -> None:
     assert np.all(st[K.S_FFH0 : K.S_FFH0 + int(p[K.P_SPH_LEN])] == 0.0)
 
 
-def _doc(**control: object) -> dict[str, object]:
-    return {
-        "axis": {"kind": "linear", "transmission_ratio": 628.3},
-        "mechanics": {"motor_inertia": 1e-4, "load_mass": 25.0},
-        "control": {"kv": 30.0, "ksp": 0.1, **control},
-    }
-
-
 @pytest.mark.parametrize(
     ("control", "message"),
     [
@@ -183,7 +176,7 @@ def _doc(**control: object) -> dict[str, object]:
 )
 def test_bad_keys_are_refused_naming_them(control: dict[str, float], message: str) -> None:
     with pytest.raises(AxisFileError) as info:
-        axis_from_mapping(_doc(**control))
+        axis_from_mapping(small_axis(**control))
     assert message in str(info.value)
 
 
@@ -191,7 +184,7 @@ def test_a_delay_the_history_cannot_hold_is_refused() -> None:
     """A growing delay may reach 0.1 s: at a speed cycle of 20 µs that is 5,000 samples,
     more than the kernel keeps; refused before anything runs, naming the key."""
     axis = axis_from_mapping(
-        _doc(
+        small_axis(
             setpoint_delay=1e-3,
             setpoint_delay_rate=1e-3,
             speed_cycle=20e-6,

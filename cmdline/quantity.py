@@ -1,6 +1,7 @@
-"""Values with units as an engineer reads them (the report's headline, page and summary).
+"""Values with units as an engineer reads them: every printed figure of the project's commands
+(the diagnosis report, the demo's summary, the bridge's run, the plots).
 
-A value in the axis's SI units (:func:`.parameters.key_unit`: m, s, rad, N, N·m, m/s, ...)
+A value in SI units (m, s, rad, N, N·m, m/s, ...; the diagnosis's ``key_unit``)
 is shown with the decimal prefix that puts its number between 1 and 1000 — 28 µm, 2.1 ms,
 40.8 N, 12 mN·m, 35 mm/s — and three significant digits. Values compared with each other
 (a data sheet and a fitted value, the ends of a range) share one prefix, chosen by the larger.
@@ -63,6 +64,14 @@ def quantity(value: float | None, unit: str, digits: int = 3, like: float | None
     magnitude = max(abs(value), abs(like) if like is not None and math.isfinite(like) else 0.0)
     scale, shown = prefix_for(unit, magnitude)
     return f"{number(value / scale, digits)} {shown}".rstrip()
+
+
+def resolved(value: float, unit: str, floor: float = 1e-9, digits: int = 3) -> str:
+    """:func:`quantity`, or 'below 1 nm' (``floor`` in ``unit``) for a smaller magnitude: a
+    standstill error of 3e-14 m is rounding, not 3e-05 nm."""
+    if math.isfinite(value) and abs(value) < floor:
+        return f"below {quantity(floor, unit, digits)}"
+    return quantity(value, unit, digits)
 
 
 def quantities(values: list[float], unit: str, digits: int = 3, sep: str = " … ") -> str:
