@@ -12,11 +12,8 @@ from typing import Any
 import numpy as np
 
 from regulator.tuning import SearchResult, TrialResult
-<<<<<<< HEAD
 from regulator.units import fine_scale
-=======
 from virtual_bus.atomic import replacing, write_atomic
->>>>>>> main
 
 from .freqresp import FrequencyResponse
 
