@@ -23,7 +23,7 @@ from bridge.commission.session import Recording
 from bridge.params import BridgeParams
 from regulator import RegulatorConfig, cycle
 from regulator.loop import SteppedAxis, play
-from regulator.tuning import Record, SafetyLimits, safety_stop
+from regulator.tuning import MotionProfile, Record, Runner, SafetyLimits, safety_stop
 
 #: What the loop closes around (:class:`regulator.loop.SteppedAxis`).
 Plant = SteppedAxis
@@ -109,20 +109,19 @@ def _stop_reason(
 
 def trial_runner(
     make_plant: Callable[[float], Plant],
-    position: np.ndarray,
-    speed: np.ndarray,
     kr: float,
     base: RegulatorConfig,
     safety: SafetyLimits,
     velocity_feedforward: float = 0.0,
-    disturbance_nm: np.ndarray | None = None,
     params: BridgeParams | None = None,
-) -> Callable[[float | None], Record]:
+    start: float = 0.0,
+) -> Runner:
     """A :data:`regulator.tuning.Runner` on fresh plants (``make_plant(start)``): each trial
-    from the same state, the bridge's cycle with its limits (``params``) in the loop and the
-    test's safety limits applied to what it recorded."""
+    from the same state at ``start``, the profile's load pulse on the plant's disturbance
+    input, the bridge's cycle with its limits (``params``) in the loop and the test's safety
+    limits applied to what it recorded."""
 
-    def run(beta_t: float | None) -> Record:
+    def run(profile: MotionProfile, beta_t: float | None) -> Record:
         config = RegulatorConfig(
             kv=base.kv,
             cycle_s=base.cycle_s,
@@ -132,10 +131,17 @@ def trial_runner(
             tf_s=base.tf_s,
             enabled=beta_t is not None,
         )
-        plant = make_plant(float(position[0]))
+        plant = make_plant(start)
         try:
             trace = run_loop(
-                plant, position, speed, kr, config, velocity_feedforward, disturbance_nm, params
+                plant,
+                profile.position + start,
+                profile.speed,
+                kr,
+                config,
+                velocity_feedforward,
+                profile.disturbance_nm,
+                params,
             )
         finally:
             close = getattr(plant, "close", None)

@@ -19,12 +19,20 @@ from dataclasses import replace
 import numpy as np
 
 from bridge.commission.freqresp import ExcitationPlan, FrequencyResponse
+from bridge.commission.tune import TuneOptions, axis_limits, make_ladder
 from bridge.params import BridgeParams
 from plant_sim.fmu.arguments import AxisSource
 from plant_sim.physics.model import AxisPlant
 from regulator import RegulatorConfig
 from regulator.frequency_response import antiresonance, bandwidth
-from regulator.tuning import MotionProfile, Record, SafetyLimits, TuningError
+from regulator.tuning import (
+    Runner,
+    SafetyLimits,
+    SearchResult,
+    TrialResult,
+    TuningError,
+    search,
+)
 from virtual_bus.formats.axis import AxisConfig
 
 from .loop import Plant, run_loop, trial_runner
@@ -78,28 +86,57 @@ def kernel_plant(axis: AxisConfig) -> Callable[[float], AxisPlant]:
     return lambda start: AxisPlant(axis, position=start)
 
 
-def plant_runner(
-    source: AxisSource,
-    profile: MotionProfile,
-    safety: SafetyLimits,
-    disturbance_nm: np.ndarray | None = None,
-) -> Callable[[float | None], Record]:
+def plant_runner(source: AxisSource, safety: SafetyLimits) -> Runner:
     """Trials on a fresh plant of the source each (the compiled kernel's ``AxisPlant`` or an
-    FMU's): the bridge's loop (:func:`hil.loop.trial_runner`, the cycle of
+    FMU's) at rest at 0: the bridge's loop (:func:`hil.loop.trial_runner`, the cycle of
     :mod:`regulator.cycle` with the bridge's 2007h clamp and its 2008h (the test's following
-    error limit), 2009h and 2014h supervision), the one-cycle PDO delay."""
+    error limit), 2009h and 2014h supervision), the one-cycle PDO delay; a profile's load
+    pulse on the plant's disturbance input."""
     axis = source.axis
     base = base_regulator(axis)
     return trial_runner(
         source.plant,
-        profile.position,
-        profile.speed,
         axis.transmission_ratio,
         base,
         safety,
         axis.control.velocity_feedforward or 0.0,
-        disturbance_nm,
         replace(BridgeParams.for_axis(axis, base), following_error_limit=safety.following_error),
+    )
+
+
+def tune_offline(
+    source: AxisSource,
+    options: TuneOptions,
+    following_error_limit: float,
+    travel: tuple[float, float] | None = None,
+    on_trial: Callable[[TrialResult], None] | None = None,
+) -> SearchResult:
+    """``hil tune``'s procedure: the ladder sized from the axis file, the trials on fresh
+    plants at rest at 0 (:func:`plant_runner`, a load pulse on the plant's disturbance input).
+    TuningInputError before anything runs (a torque limit below friction, a motion outside
+    the travel); TuningError when no motion provokes a limit cycle."""
+    axis = source.axis
+    default = safety_of(axis, following_error_limit)
+    limits = axis_limits(
+        axis,
+        options,
+        following_error_limit,
+        travel or (default.position_min, default.position_max),
+    )
+    ladder = make_ladder(options, limits, 0.0, True, "")
+    safety = SafetyLimits(
+        following_error_limit, limits.position_min, limits.position_max, options.torque_limit
+    )
+    return search(
+        plant_runner(source, safety),
+        ladder,
+        options.search,
+        limits.cycle_s,
+        limits.kv,
+        options.standstill_limit,
+        velocity_feedforward=axis.control.velocity_feedforward or 0.0,
+        on_trial=on_trial,
+        unit=limits.unit,
     )
 
 

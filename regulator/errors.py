@@ -38,6 +38,16 @@ class AnalysisError(RegulatorError, ValueError):
     """Arguments of an analysis function (signal, frequencies, parameters) are unusable."""
 
 
+class TuningError(RegulatorError, ValueError):
+    """A beta_T tuning run cannot start or cannot find beta_T (:mod:`regulator.tuning`);
+    nothing is stored."""
+
+
+class TuningInputError(TuningError):
+    """The tuning's input is unusable (a motion outside the travel, a torque limit below
+    friction): refused before anything moves."""
+
+
 # --- Checks shared by the configuration classes and the per-cycle inputs --------------------
 
 

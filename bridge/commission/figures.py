@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from regulator.tuning import SearchResult, TrialResult
+from regulator.units import fine_scale
 from virtual_bus.atomic import replacing, write_atomic
 
 from .freqresp import FrequencyResponse
@@ -79,11 +80,14 @@ def bode_figure(
     plt.close(fig)
 
 
-def trials_figure(result: SearchResult, cycle_s: float, path: Path, unit_scale: float) -> None:
-    """One panel per trial (following error over time, the verdict in the title) and a
-    last panel of the oscillation measured against beta_T with the limit and the result.
-    ``unit_scale``: load units -> shown units (1e6: micrometres)."""
+def trials_figure(result: SearchResult, cycle_s: float, path: Path) -> None:
+    """One panel per trial -- the following error less eq. 1's (v / k_v: the ramps' own
+    error), in µm, the view scaled to what the judged windows (shaded) hold so that a
+    vibration of tens of µm is not dwarfed by a ramp's transient of millimetres; the verdict in
+    the title -- and a last panel of the oscillation measured against beta_T with the limit and
+    the result."""
     plt = _pyplot()
+    scale, fine = fine_scale(result.unit)
     trials = [result.reference, *result.trials]
     if result.confirmation is not None:
         trials.append(result.confirmation)
@@ -92,24 +96,44 @@ def trials_figure(result: SearchResult, cycle_s: float, path: Path, unit_scale: 
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 2.6 * rows), squeeze=False)
     flat = list(axes.flat)
     for row in axes:
-        row[0].set_ylabel("following error" + (", um" if unit_scale == 1e6 else ""), fontsize=8)
+        row[0].set_ylabel(f"following error - eq. 1, {fine}", fontsize=8)
+    profile = result.profile
+    windows = () if profile is None else (*profile.watch, *profile.rest)
     for ax, trial in zip(flat, trials, strict=False):
         rec = trial.record
-        e = (rec.position_reference - rec.load_position) * unit_scale
+        e = rec.position_reference - rec.load_position
+        if not math.isnan(result.kv):
+            e = e - result.expected_error(rec, cycle_s)
+        e = e * scale
         t = np.arange(e.size) * cycle_s
         ax.plot(t, e, lw=0.6)
+        inside = [e[a:b] for a, b in windows if b <= e.size]
+        if inside:
+            peak = max(float(np.max(np.abs(w))) for w in inside)
+            span = 1.3 * max(peak, 3.0 * result.limits.vibration * scale, 0.5)
+            ax.set_ylim(-span, span)
+            for a, b in windows:
+                ax.axvspan(a * cycle_s, b * cycle_s, color="0.9", lw=0, zorder=0)
         name = "regulator off" if trial.beta_t_rad_s is None else f"beta_T {trial.beta_t_rad_s:.3g}"
-        ax.set_title(f"{name}: {trial.verdict.value}", fontsize=9)
+        verdict = trial.verdict.value
+        if trial.beta_t_rad_s is None:
+            verdict = "limit cycle" if trial.verdict.value == "vibrating" else "no limit cycle"
+        ax.set_title(f"{name}: {verdict}", fontsize=9)
         ax.set_xlabel("s", fontsize=7)
         ax.tick_params(labelsize=7)
     summary = flat[len(trials)]
     betas = [t.beta_t_rad_s for t in result.trials if t.metrics is not None]
-    vib = [t.metrics.vibration * unit_scale for t in result.trials if t.metrics is not None]
-    summary.loglog(betas, np.maximum(vib, 1e-9), "o-", ms=3)
-    summary.axhline(result.limits.vibration * unit_scale, color="C3", lw=1, label="limit")
+    vib = [t.metrics.vibration * scale for t in result.trials if t.metrics is not None]
+    summary.loglog(betas, np.maximum(vib, 1e-6), "o", ms=3)
+    summary.axhline(result.limits.vibration * scale, color="C3", lw=1, label="limit")
+    if result.reference.metrics is not None:
+        summary.axhline(
+            result.reference.metrics.vibration * scale, color="0.5", lw=1, label="regulator off"
+        )
     if result.beta_t_rad_s is not None:
         summary.axvline(result.beta_t_rad_s, color="C2", lw=1, label="result")
     summary.set_xlabel("beta_T, rad/s", fontsize=8)
+    summary.set_ylabel(f"oscillation, {fine}", fontsize=8)
     summary.set_title("oscillation in eq. 13's band", fontsize=9)
     summary.legend(fontsize=7)
     for ax in flat[len(trials) + 1 :]:
@@ -124,6 +148,7 @@ def trial_dict(trial: TrialResult) -> dict[str, Any]:
     m = trial.metrics
     return {
         "beta_t_rad_s": trial.beta_t_rad_s,
+        "motion": trial.motion,
         "verdict": trial.verdict.value,
         "reason": trial.reason,
         "metrics": None
@@ -132,6 +157,7 @@ def trial_dict(trial: TrialResult) -> dict[str, Any]:
             "vibration": m.vibration,
             "following_deviation": m.following_deviation,
             "standstill_error": m.standstill_error,
+            "settle_s": m.settle_s,
             "lambda_at_rest": m.lambda_at_rest,
             "beta_max_rad_s": m.beta_max,
         },
@@ -139,12 +165,26 @@ def trial_dict(trial: TrialResult) -> dict[str, Any]:
 
 
 def search_dict(result: SearchResult) -> dict[str, Any]:
+    """The search as JSON: lengths in load units (``unit``: m or rad)."""
     return {
         "outcome": result.outcome.value,
         "beta_t_rad_s": result.beta_t_rad_s,
         "last_stable_rad_s": result.last_stable_rad_s,
         "first_vibrating_rad_s": result.first_vibrating_rad_s,
+        "margin": result.margin,
         "reason": result.reason,
+        "cost": result.cost,
+        "unit": result.unit,
+        "provoked_by": result.reference.motion,
+        "tried": [
+            {
+                "motion": t.name,
+                "description": t.description,
+                "vibration": t.vibration,
+                "skipped": t.skipped,
+            }
+            for t in result.tried
+        ],
         "limits": {
             "vibration": result.limits.vibration,
             "standstill_error": result.limits.standstill_error,

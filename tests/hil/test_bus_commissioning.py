@@ -23,7 +23,6 @@ from bridge.commission.freqresp import ExcitationPlan, measure
 from bridge.commission.session import CommissioningStopped
 from bridge.commission.tune import TuneOptions, tune
 from bridge.cycle import BridgeState, StopReason
-from bridge.errors import ParameterError
 from bridge.node import Bridge, BridgeConfig
 from bridge.params import BridgeParams
 from bridge.timing import LockstepPacer
@@ -109,7 +108,9 @@ def test_tune_over_the_bus_writes_and_stores_beta_t(tmp_path: Path) -> None:
     with simulated_axis(
         LIMIT_CYCLE, _params(LIMIT_CYCLE), bridge_config=BridgeConfig(store_path=store)
     ) as sim:
-        report = tune(sim.bridge, TuneOptions(torque_limit=150.0), on_trial=seen.append)
+        report = tune(
+            sim.bridge, TuneOptions(torque_limit=150.0), LIMIT_CYCLE, on_trial=seen.append
+        )
         assert sim.bridge.controller.params.beta_t_rad_s == pytest.approx(report.beta_t_rad_s)
     result = report.result
     assert result.outcome is Outcome.FOUND and report.stored
@@ -126,8 +127,10 @@ def test_a_travel_limit_too_short_refuses_the_test_and_changes_nothing(tmp_path:
         c = sim.bridge.controller
         c.set_params(c.params.with_value("position_limit_max", 0.01))  # 10 mm of travel
         start = sim.drive.plant.load_position
-        with pytest.raises(ParameterError, match="leaves the software position limits 2014h"):
-            tune(sim.bridge, TuneOptions(torque_limit=150.0))
+        # every rung's path leaves the travel: refused, naming each, before anything moves
+        with pytest.raises(TuningError, match="leaves the travel") as info:
+            tune(sim.bridge, TuneOptions(torque_limit=150.0), LIMIT_CYCLE)
+        assert str(info.value).count("leaves the travel") >= 4
         assert sim.drive.plant.load_position == pytest.approx(start, abs=1e-9)
     assert not store.exists()
 
@@ -155,8 +158,8 @@ def test_a_tuning_run_without_limit_cycle_stores_nothing(tmp_path: Path) -> None
     store_before = b'{"format": "backlash-bridge parameter store", "version": 1, "objects": {}}'
     store.write_bytes(store_before)
     with simulated_axis(PAPER, _params(), bridge_config=BridgeConfig(store_path=store)) as sim:
-        with pytest.raises(TuningError, match="excites no limit cycle"):
-            tune(sim.bridge, TuneOptions(torque_limit=150.0, repeats=1))
+        with pytest.raises(TuningError, match="excites a limit cycle under ordinary control"):
+            tune(sim.bridge, TuneOptions(torque_limit=150.0, repeats=1), PAPER)
         assert sim.bridge.controller.state is BridgeState.DISABLED
     assert store.read_bytes() == store_before
 
@@ -195,5 +198,7 @@ def test_bridge_tune_against_the_drive_as_its_own_process(
     assert struct.unpack("<f", bytes.fromhex(_stored(store)["2002h:00"]))[0] == pytest.approx(
         beta, rel=1e-6
     )
-    assert f"beta_T = {beta:.4g} rad/s written to 2002h, stored in {store}" in run.stdout
+    said = run.stdout.strip().splitlines()[-1]  # the result, what it costs, where it went
+    assert said.startswith(f"beta_T = {beta:.4g} rad/s; ") and "following error" in said
+    assert said.endswith(f"; written to 2002h, stored in {store} (1010h)"), said
     assert not math.isnan(beta)

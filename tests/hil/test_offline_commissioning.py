@@ -104,17 +104,20 @@ def test_hil_tune_on_an_axis_without_limit_cycle_says_so(
     argv = ["tune", "--axis", str(CONFIG / "paper_axis.toml"), "--out", str(tmp_path / "t")]
     code = main([*argv, "--torque-limit", "150"])
     err = capsys.readouterr().err
-    assert code == 1 and "excites no limit cycle under ordinary control" in err
+    assert code == 1 and "excites a limit cycle under ordinary control" in err
+    for rung in ("tried deceleration", "sharp deceleration", "reversal", "load pulse"):
+        assert rung in err, err  # the refusal names what was tried
     assert err.count("\n") == 1
 
 
 def test_hil_tune_stops_on_a_safety_limit(
     limit_cycle_axis: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A following-error limit below the test motion's (eq. 1: 0.05 / 25 = 2 mm) stops the
-    first trial with the reason, in the bridge's words (the loop is the bridge's cycle with its
-    2008h)."""
+    """A following-error limit below what the user's feed needs (eq. 1: 0.05 / 25 = 2 mm; the
+    default motion would choose its feed from the limit) stops the first trial with the
+    reason, in the bridge's words (the loop is the bridge's cycle with its 2008h)."""
     argv = ["tune", "--axis", str(limit_cycle_axis), "--out", str(tmp_path / "t")]
+    argv += ["--feed", "0.05", "--low-feed", "0.02"]
     code = main([*argv, "--torque-limit", "150", "--following-error-limit", "0.001"])
     err = capsys.readouterr().err
     assert code == 1 and "following error" in err and "exceeds 2008h = 0.001" in err

@@ -31,26 +31,40 @@ def section_x_for(axis_source: AxisSource, feed: float | None = None) -> Section
     return scenario if feed is None else replace(scenario, feed=feed)
 
 
-def run_limit_cycle(spec: FmuSpec, options: Mapping[str, str]) -> Row:
+def limit_cycle_scenario(source: AxisSource) -> tuple[SectionX, Any, Any] | None:
     """Section X on the axis's data-sheet loop (k_v, cycles) through the bridge's loop without
-    a bus: is there a sustained limit cycle under ordinary control (at the paper's feed or the
-    first lower feed of the demo, :data:`hil.demo.FMU_FEEDS`), in the eq. 13 band, and how
-    much does the regulator with its default β_T cut it."""
+    a bus, at the paper's feed or the first lower feed of the demo (:data:`hil.demo.FMU_FEEDS`)
+    where ordinary control has a sustained limit cycle in the eq. 13 band: (the scenario, the
+    ordinary run's trace, its late verdict); None when there is none."""
     from hil.demo import FMU_FEEDS, late_verdict, offline_run
+
+    axis = source.axis
+    ordinary = RegulatorConfig(
+        kv=axis.control.kv, cycle_s=axis.control.position_cycle, enabled=False
+    )
+    for feed in (None, *FMU_FEEDS):
+        scenario = section_x_for(source, feed)
+        off = offline_run(source, axis, scenario.references(axis), ordinary)
+        verdict = late_verdict(off, axis, scenario)
+        if verdict.in_band:
+            return scenario, off, verdict
+    return None
+
+
+def run_limit_cycle(spec: FmuSpec, options: Mapping[str, str]) -> Row:
+    """Is there a sustained limit cycle in section X under ordinary control
+    (:func:`limit_cycle_scenario`), and how much does the regulator with its default beta_T
+    cut it."""
+    from hil.demo import late_verdict, offline_run
 
     source = fmu_source(spec)
     axis = source.axis
-    kv, cycle = axis.control.kv, axis.control.position_cycle
-    ordinary = RegulatorConfig(kv=kv, cycle_s=cycle, enabled=False)
-    row: Row = {"kv_per_s": kv, "feed_m_s": None, "limit_cycle": False}
-    for feed in (None, *FMU_FEEDS):
-        scenario = section_x_for(source, feed)
-        refs = scenario.references(axis)
-        off = offline_run(source, axis, refs, ordinary)
-        v_off = late_verdict(off, axis, scenario)
-        if not v_off.in_band:
-            continue
-        on = offline_run(source, axis, refs, replace(ordinary, enabled=True))
+    row: Row = {"kv_per_s": axis.control.kv, "feed_m_s": None, "limit_cycle": False}
+    found = limit_cycle_scenario(source)
+    if found is not None:
+        scenario, _, v_off = found
+        regulated = RegulatorConfig(kv=axis.control.kv, cycle_s=axis.control.position_cycle)
+        on = offline_run(source, axis, scenario.references(axis), regulated)
         v_on = late_verdict(on, axis, scenario)
         row |= {
             "feed_m_s": scenario.feed,
@@ -62,7 +76,6 @@ def run_limit_cycle(spec: FmuSpec, options: Mapping[str, str]) -> Row:
             "standstill_error_ordinary_m": v_off.final_standstill_error,
             "standstill_error_regulated_m": v_on.final_standstill_error,
         }
-        break
     return row | truth(source, "effect", "backlash", "backlash_mid")
 
 
