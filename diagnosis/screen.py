@@ -45,6 +45,8 @@ from virtual_bus.formats.trace import Trace
 
 from . import deflection as dfl
 from . import idim
+from .clipping import clipping_test
+from .clipping import effect_test as clipping_effect_test
 from .effects import MODELS, Effect, effects_in
 from .errors import DiagnosisInputError
 from .evidence import DataScales, data_scales
@@ -517,6 +519,14 @@ def screen(
         # stated): the recorded torque never reaches the stated one, so the loop scans limits
         # at the top of the recorded torque (a plateau there is the drive's real limit)
         candidates |= {Effect.TORQUE_SATURATION}
+    # clipping seen in the recorded torque itself (plateaus at one level on both signs,
+    # :mod:`.clipping`) is the direct evidence of a limit; the loop's signature at face value
+    # misses it where the model without the limit runs far from the recording
+    clip = (
+        clipping_test(recording["motor_torque"], data.sample_time_s)
+        if Effect.TORQUE_SATURATION in candidates
+        else None
+    )
     not_tested: dict[Effect, str] = {}
     for e in candidates & UNTESTED.keys():
         not_tested[e] = UNTESTED[e]
@@ -597,6 +607,9 @@ def screen(
                 model, inp, frozenset(loop_left), not m_rec.two_systems, following, with_contact
             )
             lt, n_loop = loop_tests(inp, model, _kernel_options(model), lc, rng, pool)
+            if clip is not None and clip.clipped and Effect.TORQUE_SATURATION in loop_left:
+                lt[Effect.TORQUE_SATURATION] = clipping_effect_test(clip, LOOP_NAME)
+                notes.append(f"torque_saturation: {clip.describe()}")
             n_replays += n_loop
             loop_model = model
             loop_sig, loop_verdicts = _judge(lt, model, alpha_each, rnd_no, data)
