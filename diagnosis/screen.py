@@ -45,6 +45,7 @@ from virtual_bus.formats.trace import Trace
 
 from . import deflection as dfl
 from . import idim
+from . import standstill as rest
 from .clipping import clipping_test
 from .clipping import effect_test as clipping_effect_test
 from .effects import MODELS, Effect, effects_in
@@ -394,6 +395,72 @@ def _choose(
     return best, ambiguous
 
 
+def _rest_residual(
+    rnd: _Round, m_rec: Measured, model: AxisConfig, scans: idim.Scans, given: EffectTest
+) -> np.ndarray | None:
+    """The torque balance's residual (moving rows, time order) with ``given``'s regressors at
+    its best scan point added to the base, least squares on the recording."""
+    rec = rnd.relations[idim.NAME][0]
+    cands = {
+        c.effect: c for c in idim.torque_candidates(m_rec, model, scans, frozenset({given.effect}))
+    }
+    if given.effect not in cands:
+        return None
+    cols = list(cands[given.effect].scan[given.test.best].values())
+    x = np.column_stack([rec.matrix(list(rnd.fitted[idim.NAME].keys)), *cols])[rec.mask]
+    y = rec.y[rec.mask]
+    ok = np.all(np.isfinite(x), axis=1) & np.isfinite(y)
+    coef, *_ = np.linalg.lstsq(x[ok], y[ok], rcond=None)
+    return y[ok] - x[ok] @ coef
+
+
+def _at_rest(
+    best: EffectTest,
+    ambiguous: list[tuple[Effect, Effect]],
+    significant: Sequence[EffectTest],
+    rnd: _Round,
+    m_rec: Measured,
+    model: AxisConfig,
+    scans: idim.Scans,
+    alpha: float,
+    notes: list[str],
+) -> tuple[EffectTest, list[tuple[Effect, Effect]], list[Effect]]:
+    """Ambiguous pairs of the torque balance that predict different torques at rest before
+    the first move (:meth:`.effects.EffectModel.at_rest`, :mod:`.standstill`): the one the
+    recording's rest torque matches is named, the other dropped (returned as the losers);
+    pairs it does not decide stay ambiguous."""
+    tests = {t.effect: t for t in significant}
+    losers: list[Effect] = []
+    left: list[tuple[Effect, Effect]] = []
+    for a, b in ambiguous:
+        if a not in tests or b not in tests or tests[a].relation != idim.NAME:
+            left.append((a, b))
+            continue
+        pa, pb = MODELS[a].at_rest(tests[a].estimate), MODELS[b].at_rest(tests[b].estimate)
+        if pa is None or pb is None or pa == pb:
+            left.append((a, b))
+            continue
+        residual = _rest_residual(rnd, m_rec, model, scans, tests[a])
+        found = None
+        if residual is not None:
+            found = rest.rest_torque(m_rec.time_s, m_rec.reference, m_rec.torque, residual)
+        if found is None:
+            notes.append(f"{a.value} or {b.value}: no rest before the first move to tell them")
+            left.append((a, b))
+            continue
+        d = rest.decide((pa, pb), found, alpha)
+        notes.append(f"{a.value} or {b.value}: {d.describe((a.value, b.value))}")
+        if d.winner is None:
+            left.append((a, b))
+            continue
+        win, lose = (a, b) if d.winner == 0 else (b, a)
+        losers.append(lose)
+        if win is not best.effect:
+            best = tests[win]
+    left = [(best.effect, e) for _, e in left if e is not best.effect and e not in losers]
+    return best, left, losers
+
+
 def _judge(
     tests: Mapping[Effect, EffectTest],
     model: AxisConfig,
@@ -643,6 +710,10 @@ def screen(
                 left, _ = _judge(again, trial, alpha_each, rnd_no, data)
                 sig = [lead] if not left else plant_sig
         best, amb = _choose(sig, rnd, m_rec, model, scans, alpha_each, rng)
+        best, amb, losers = _at_rest(best, amb, sig, rnd, m_rec, model, scans, alpha_each, notes)
+        for e in losers:
+            remaining.discard(e)
+            loop_left.discard(e)
         best = _refine(best, rnd, m_rec, model, scans)
         vals, _ = effect_values(best.effect, best.estimate, model)
         new_model = _safe(_safe(model, _base_update(rnd, model, nominal)), vals)
