@@ -357,8 +357,35 @@ def _conditional_p(
     extended = Relation(
         rec.name, rec.y, {**rec.columns, **{f"given {k}": v for k, v in cols.items()}}, rec.mask
     )
+    if _in_span(extended, cands[tested]):
+        # nothing of ``tested`` is left beside ``given`` (a load torque beside direction-
+        # dependent Coulomb friction on moving rows: 1 = [v>0] + [v<0]); its test would
+        # judge a round-off column
+        return 1.0
     res = evaluate_candidates(extended, [], fit_relation(extended), [cands[tested]], [], rng)
     return res[tested].p if tested in res else 0.0
+
+
+#: Relative norm below which a candidate's column counts as lying in the base's span.
+SPAN_TOLERANCE = 1e-8
+
+
+def _in_span(rel: Relation, cand: Candidate) -> bool:
+    """Every column of ``cand`` (at every scan point) lies in the span of ``rel``'s columns
+    on its rows (least squares leaves a relative norm below :data:`SPAN_TOLERANCE`)."""
+    base = rel.matrix(list(rel.columns))[rel.mask]
+    ok = np.all(np.isfinite(base), axis=1)
+    for cols in cand.scan:
+        for col in cols.values():
+            z = np.asarray(col, dtype=float)[rel.mask]
+            good = ok & np.isfinite(z)
+            norm = float(np.linalg.norm(z[good]))
+            if norm == 0.0:
+                continue
+            coef, *_ = np.linalg.lstsq(base[good], z[good], rcond=None)
+            if float(np.linalg.norm(z[good] - base[good] @ coef)) > SPAN_TOLERANCE * norm:
+                return False
+    return True
 
 
 def _choose(
