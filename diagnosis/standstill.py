@@ -9,7 +9,8 @@ load acts on an axis that has not moved yet and the position loop holds it (the 
 rest is τ_L), friction does not act without motion (the torque at rest is 0). Each effect
 says what it makes there (:meth:`.effects.EffectModel.at_rest`); the recording's mean torque
 over the second half of its first rest (the loop has settled) decides when it matches one
-prediction within the uncertainty and not the other.
+prediction within the uncertainty and not the other, or, matching neither, lies on a non-zero
+prediction's side (:func:`decide`).
 
 The uncertainty of that mean is not the white noise's alone: a torque the model does not
 explain and that wanders slowly (an unrecorded process load) moves a short mean as much. So
@@ -111,8 +112,18 @@ class RestDecision:
 
 def decide(predictions: tuple[float, float], rest: RestTorque, alpha: float) -> RestDecision:
     """The prediction the rest torque matches within k scales (k = Φ⁻¹(1 − α/2)) while the
-    other lies beyond them; undecided otherwise (both or neither match)."""
+    other lies beyond them. Where neither matches, a rest torque of a prediction's sign and
+    nearer to it than to the other's decides for it when it is not zero: friction before the
+    first move can take part of a load over (static friction), so a held torque may fall short
+    of the load's estimate, but it never makes one; a prediction of zero must match. Otherwise
+    undecided."""
     k = float(stats.norm.isf(0.5 * alpha))
-    match = [abs(rest.mean - p) <= k * rest.scale for p in predictions]
+    m = rest.mean
+    match = [abs(m - p) <= k * rest.scale for p in predictions]
     winner = match.index(True) if sum(match) == 1 else None
+    if not any(match):
+        near = 0 if abs(m - predictions[0]) < abs(m - predictions[1]) else 1
+        p = predictions[near]
+        if p != 0.0 and math.copysign(1.0, p) == math.copysign(1.0, m):
+            winner = near
     return RestDecision(winner, predictions, rest, k)

@@ -32,8 +32,15 @@ def test_the_rest_torque_decides_only_when_one_prediction_matches() -> None:
     assert decide((0.11, 0.0), rest, 0.01).winner == 1
     assert decide((0.0, 0.11), rest, 0.01).winner == 0
     assert decide((0.004, 0.0), rest, 0.01).winner is None  # both match
-    far = RestTorque(mean=0.5, scale=0.003, start_s=0.15, end_s=0.3, rows=150)
-    assert decide((0.11, 0.0), far, 0.01).winner is None  # neither
+    # neither matches: a held torque of the load's sign nearer its estimate is the load's
+    # (static friction may take part of a load over, never make a torque at rest) ...
+    beyond = RestTorque(mean=-2.94, scale=0.015, start_s=0.15, end_s=0.3, rows=150)
+    assert decide((-2.51, 0.0), beyond, 0.01).winner == 0
+    # ... but one nearer zero is not friction's unless it matches zero
+    short = RestTorque(mean=0.08, scale=0.003, start_s=0.15, end_s=0.3, rows=150)
+    assert decide((0.5, 0.0), short, 0.01).winner is None
+    opposite = RestTorque(mean=0.4, scale=0.003, start_s=0.15, end_s=0.3, rows=150)
+    assert decide((-0.5, 0.0), opposite, 0.01).winner is None
 
 
 def test_each_effect_says_what_it_makes_at_rest() -> None:
