@@ -99,11 +99,15 @@ class RestDecision:
     def describe(self, names: tuple[str, str]) -> str:
         r = self.rest
         said = ", ".join(f"{n} {p:.3g}" for n, p in zip(names, self.predictions, strict=True))
-        verdict = (
-            f"{names[self.winner]} matches it, the other does not"
-            if self.winner is not None
-            else "neither matches it alone: undecided"
-        )
+        if self.winner is None:
+            verdict = "neither matches it alone: undecided"
+        elif abs(r.mean - self.predictions[self.winner]) <= self.k * r.scale:
+            verdict = f"{names[self.winner]} matches it, the other does not"
+        else:
+            verdict = (
+                f"{names[self.winner]}: a held torque of its sign, nearer its estimate; the "
+                "other's is refuted"
+            )
         return (
             f"torque at rest before the first move ({r.start_s:.2f}–{r.end_s:.2f} s): "
             f"{r.mean:.3g} ± {self.k:.2g} × {r.scale:.2g} N·m; predicted: {said}; {verdict}"
