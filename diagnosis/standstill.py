@@ -100,7 +100,7 @@ class RestDecision:
         r = self.rest
         said = ", ".join(f"{n} {p:.3g}" for n, p in zip(names, self.predictions, strict=True))
         if self.winner is None:
-            verdict = "neither matches it alone: undecided"
+            verdict = "both or neither match it: undecided"
         elif abs(r.mean - self.predictions[self.winner]) <= self.k * r.scale:
             verdict = f"{names[self.winner]} matches it, the other does not"
         else:
