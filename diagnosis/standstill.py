@@ -14,8 +14,8 @@ prediction's side (:func:`decide`).
 
 The uncertainty of that mean is not the white noise's alone: a torque the model does not
 explain and that wanders slowly (an unrecorded process load) moves a short mean as much. So
-its scale is the spread of the means of the torque balance's own residual (the model with
-the effect, on the moving rows) over windows of the same number of samples.
+its scale is the standard deviation of the means of the torque balance's own residual (the
+model with the effect, on the moving rows) over windows of the same number of samples.
 
 Limits: a load smaller than the static friction on an axis whose friction sticks without
 pre-sliding (set-valued Coulomb friction) is held by the friction at the start, at zero
@@ -60,15 +60,17 @@ def first_rest(reference: np.ndarray) -> slice | None:
 
 
 def window_spread(residual: np.ndarray, rows: int) -> float:
-    """Robust spread (1.4826·MAD) of the means of consecutive windows of ``rows`` samples of
-    ``residual`` (NaN with fewer than :data:`MIN_WINDOWS` windows)."""
+    """Standard deviation of the means of consecutive windows of ``rows`` samples of
+    ``residual`` (NaN with fewer than :data:`MIN_WINDOWS` windows). Not a robust spread: a
+    load that steps and stays moves a few windows' means far, and must widen it (the third
+    plant's clean recording of seed 12, ``tests/diagnosis/test_second_recording.py``)."""
     r = np.asarray(residual, dtype=float)
     r = r[np.isfinite(r)]
     k = len(r) // rows
     if k < MIN_WINDOWS:
         return math.nan
     means = r[: k * rows].reshape(k, rows).mean(axis=1)
-    return float(1.4826 * np.median(np.abs(means - np.median(means))))
+    return float(np.std(means))
 
 
 def rest_torque(
