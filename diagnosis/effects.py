@@ -110,6 +110,12 @@ class EffectModel:
         for an effect the evidence stage does not estimate in axis-file terms."""
         return {}, "no estimate"
 
+    def at_rest(self, est: Mapping[str, float]) -> float | None:
+        """The motor torque the effect at the evidence's estimate ``est`` makes at rest before
+        the axis has first moved, which the position loop holds (:mod:`.standstill`); None
+        when it predicts nothing there. Friction acts only with motion: 0."""
+        return None
+
     def describe(self, axis: AxisConfig) -> str:
         """'mechanics.backlash = 0.00028 m' for the keys ``axis`` has."""
         vals = [
@@ -200,6 +206,9 @@ class CoulombFriction(EffectModel):
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         return (fitted.friction.coulomb or 0.0) > _tiny(scales)
 
+    def at_rest(self, est: Mapping[str, float]) -> float | None:
+        return 0.0
+
     def values(self, est: Mapping[str, float], model: AxisConfig) -> Values:
         c = est.get("friction.coulomb", 0.0)
         return ({"friction.coulomb": c}, "") if c > 0.0 else ({}, f"Coulomb friction {c:.3g} < 0")
@@ -213,6 +222,9 @@ class ViscousFriction(EffectModel):
 
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         return (fitted.friction.viscous or 0.0) * scales.speed_max > _tiny(scales)
+
+    def at_rest(self, est: Mapping[str, float]) -> float | None:
+        return 0.0
 
     def values(self, est: Mapping[str, float], model: AxisConfig) -> Values:
         b = est.get("friction.viscous", 0.0)
@@ -231,6 +243,9 @@ class ConstantLoadTorque(EffectModel):
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         return abs(fitted.disturbance.constant_torque or 0.0) > _tiny(scales)
 
+    def at_rest(self, est: Mapping[str, float]) -> float | None:
+        return est.get("disturbance.constant_torque")
+
     def values(self, est: Mapping[str, float], model: AxisConfig) -> Values:
         return {"disturbance.constant_torque": est.get("disturbance.constant_torque", 0.0)}, ""
 
@@ -246,6 +261,9 @@ class AsymmetricFriction(EffectModel):
         dc = abs((f.coulomb_negative or 0.0) - (f.coulomb or 0.0))
         dv = abs((f.viscous_negative or 0.0) - (f.viscous or 0.0)) * scales.speed_max
         return max(dc, dv) > _tiny(scales)
+
+    def at_rest(self, est: Mapping[str, float]) -> float | None:
+        return 0.0
 
     def values(self, est: Mapping[str, float], model: AxisConfig) -> Values:
         fr = model.friction
@@ -264,6 +282,9 @@ class StribeckFriction(EffectModel):
 
     def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
         return (fitted.friction.stribeck or 0.0) > _tiny(scales)
+
+    def at_rest(self, est: Mapping[str, float]) -> float | None:
+        return 0.0
 
     def values(self, est: Mapping[str, float], model: AxisConfig) -> Values:
         s, vs = est.get("friction.stribeck", 0.0), est.get("friction.stribeck_speed", 0.0)
@@ -428,8 +449,9 @@ def effects_in(axis: AxisConfig) -> frozenset[Effect]:
 #: Experiments that tell two effects apart when a recording fits both equally well.
 EXPERIMENTS: dict[frozenset[Effect], str] = {
     frozenset({Effect.CONSTANT_LOAD_TORQUE, Effect.ASYMMETRIC_FRICTION}): (
-        "with Coulomb friction above the load torque the two are the same torque law; change "
-        "the load torque and not the friction (add or remove a payload on a vertical axis, "
+        "while the axis moves the two are the same torque law; record a rest of a second "
+        "before the first move (a load is held there by the loop, friction is not), or "
+        "change the load torque and not the friction (add or remove a payload on a vertical axis, "
         "tilt it) or move at several speeds in both directions: a direction difference that "
         "grows with speed is asymmetric viscous friction"
     ),

@@ -45,6 +45,9 @@ from virtual_bus.formats.trace import Trace
 
 from . import deflection as dfl
 from . import idim
+from . import standstill as rest
+from .clipping import clipping_test
+from .clipping import effect_test as clipping_effect_test
 from .effects import MODELS, Effect, effects_in
 from .errors import DiagnosisInputError
 from .evidence import DataScales, data_scales
@@ -354,8 +357,35 @@ def _conditional_p(
     extended = Relation(
         rec.name, rec.y, {**rec.columns, **{f"given {k}": v for k, v in cols.items()}}, rec.mask
     )
+    if _in_span(extended, cands[tested]):
+        # nothing of ``tested`` is left beside ``given`` (a load torque beside direction-
+        # dependent Coulomb friction on moving rows: 1 = [v>0] + [v<0]); its test would
+        # judge a round-off column
+        return 1.0
     res = evaluate_candidates(extended, [], fit_relation(extended), [cands[tested]], [], rng)
     return res[tested].p if tested in res else 0.0
+
+
+#: Relative norm below which a candidate's column counts as lying in the base's span.
+SPAN_TOLERANCE = 1e-8
+
+
+def _in_span(rel: Relation, cand: Candidate) -> bool:
+    """Every column of ``cand`` (at every scan point) lies in the span of ``rel``'s columns
+    on its rows (least squares leaves a relative norm below :data:`SPAN_TOLERANCE`)."""
+    base = rel.matrix(list(rel.columns))[rel.mask]
+    ok = np.all(np.isfinite(base), axis=1)
+    for cols in cand.scan:
+        for col in cols.values():
+            z = np.asarray(col, dtype=float)[rel.mask]
+            good = ok & np.isfinite(z)
+            norm = float(np.linalg.norm(z[good]))
+            if norm == 0.0:
+                continue
+            coef, *_ = np.linalg.lstsq(base[good], z[good], rcond=None)
+            if float(np.linalg.norm(z[good] - base[good] @ coef)) > SPAN_TOLERANCE * norm:
+                return False
+    return True
 
 
 def _choose(
@@ -390,6 +420,72 @@ def _choose(
         best = next(t for t in ranked if t.effect is fewest)
         ambiguous = [(best.effect, e) for e in group if e is not best.effect]
     return best, ambiguous
+
+
+def _rest_residual(
+    rnd: _Round, m_rec: Measured, model: AxisConfig, scans: idim.Scans, given: EffectTest
+) -> np.ndarray | None:
+    """The torque balance's residual (moving rows, time order) with ``given``'s regressors at
+    its best scan point added to the base, least squares on the recording."""
+    rec = rnd.relations[idim.NAME][0]
+    cands = {
+        c.effect: c for c in idim.torque_candidates(m_rec, model, scans, frozenset({given.effect}))
+    }
+    if given.effect not in cands:
+        return None
+    cols = list(cands[given.effect].scan[given.test.best].values())
+    x = np.column_stack([rec.matrix(list(rnd.fitted[idim.NAME].keys)), *cols])[rec.mask]
+    y = rec.y[rec.mask]
+    ok = np.all(np.isfinite(x), axis=1) & np.isfinite(y)
+    coef, *_ = np.linalg.lstsq(x[ok], y[ok], rcond=None)
+    return y[ok] - x[ok] @ coef
+
+
+def _at_rest(
+    best: EffectTest,
+    ambiguous: list[tuple[Effect, Effect]],
+    significant: Sequence[EffectTest],
+    rnd: _Round,
+    m_rec: Measured,
+    model: AxisConfig,
+    scans: idim.Scans,
+    alpha: float,
+    notes: list[str],
+) -> tuple[EffectTest, list[tuple[Effect, Effect]], list[Effect]]:
+    """Ambiguous pairs of the torque balance that predict different torques at rest before
+    the first move (:meth:`.effects.EffectModel.at_rest`, :mod:`.standstill`): the one the
+    recording's rest torque matches is named, the other dropped (returned as the losers);
+    pairs it does not decide stay ambiguous."""
+    tests = {t.effect: t for t in significant}
+    losers: list[Effect] = []
+    left: list[tuple[Effect, Effect]] = []
+    for a, b in ambiguous:
+        if a not in tests or b not in tests or tests[a].relation != idim.NAME:
+            left.append((a, b))
+            continue
+        pa, pb = MODELS[a].at_rest(tests[a].estimate), MODELS[b].at_rest(tests[b].estimate)
+        if pa is None or pb is None or pa == pb:
+            left.append((a, b))
+            continue
+        residual = _rest_residual(rnd, m_rec, model, scans, tests[a])
+        found = None
+        if residual is not None:
+            found = rest.rest_torque(m_rec.time_s, m_rec.reference, m_rec.torque, residual)
+        if found is None:
+            notes.append(f"{a.value} or {b.value}: no rest before the first move to tell them")
+            left.append((a, b))
+            continue
+        d = rest.decide((pa, pb), found, alpha)
+        notes.append(f"{a.value} or {b.value}: {d.describe((a.value, b.value))}")
+        if d.winner is None:
+            left.append((a, b))
+            continue
+        win, lose = (a, b) if d.winner == 0 else (b, a)
+        losers.append(lose)
+        if win is not best.effect:
+            best = tests[win]
+    left = [(best.effect, e) for _, e in left if e is not best.effect and e not in losers]
+    return best, left, losers
 
 
 def _judge(
@@ -517,6 +613,14 @@ def screen(
         # stated): the recorded torque never reaches the stated one, so the loop scans limits
         # at the top of the recorded torque (a plateau there is the drive's real limit)
         candidates |= {Effect.TORQUE_SATURATION}
+    # clipping seen in the recorded torque itself (plateaus at one level on both signs,
+    # :mod:`.clipping`) is the direct evidence of a limit; the loop's signature at face value
+    # misses it where the model without the limit runs far from the recording
+    clip = (
+        clipping_test(recording["motor_torque"], data.sample_time_s)
+        if Effect.TORQUE_SATURATION in candidates
+        else None
+    )
     not_tested: dict[Effect, str] = {}
     for e in candidates & UNTESTED.keys():
         not_tested[e] = UNTESTED[e]
@@ -597,6 +701,9 @@ def screen(
                 model, inp, frozenset(loop_left), not m_rec.two_systems, following, with_contact
             )
             lt, n_loop = loop_tests(inp, model, _kernel_options(model), lc, rng, pool)
+            if clip is not None and clip.clipped and Effect.TORQUE_SATURATION in loop_left:
+                lt[Effect.TORQUE_SATURATION] = clipping_effect_test(clip, LOOP_NAME)
+                notes.append(f"torque_saturation: {clip.describe()}")
             n_replays += n_loop
             loop_model = model
             loop_sig, loop_verdicts = _judge(lt, model, alpha_each, rnd_no, data)
@@ -630,6 +737,10 @@ def screen(
                 left, _ = _judge(again, trial, alpha_each, rnd_no, data)
                 sig = [lead] if not left else plant_sig
         best, amb = _choose(sig, rnd, m_rec, model, scans, alpha_each, rng)
+        best, amb, losers = _at_rest(best, amb, sig, rnd, m_rec, model, scans, alpha_each, notes)
+        for e in losers:
+            remaining.discard(e)
+            loop_left.discard(e)
         best = _refine(best, rnd, m_rec, model, scans)
         vals, _ = effect_values(best.effect, best.estimate, model)
         new_model = _safe(_safe(model, _base_update(rnd, model, nominal)), vals)
