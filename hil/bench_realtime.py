@@ -388,6 +388,8 @@ def realtime_run(
             stack.callback(reader.stop)
         bridge.timing = Timing(capacity=cycles + 64)  # no array grows during the run
         drive_cpu0 = _proc_cpu_s(drive_pid) if drive_pid is not None else 0.0
+        scope_pid = None if live is None else live.server_pid
+        scope_cpu0 = _proc_cpu_s(scope_pid) if scope_pid is not None else 0.0
         plan = host_latency_plan(rt) if host_beside else None
         result["cycle_core"] = "compiled (numba)" if bridge.controller.core.compiled else "Python"
         result["frames"] = bridge.frames.kind
@@ -405,12 +407,15 @@ def realtime_run(
         result["stop_message"] = bridge.controller.stop_message
         result["binding_floor"] = binding_floor(result)
         if live is not None:
+            # the scope's server is a process of its own: its CPU is not the loop's process's
+            server_cpu_s = _proc_cpu_s(scope_pid) - scope_cpu0 if scope_pid is not None else 0.0
             reader.stop()
             result["scope"] = {
                 "samples_handed": live.pushed,
                 "samples_dropped": live.dropped,
                 "reads": reader.reads,
                 "samples_read": reader.samples,
+                "server_cpu_percent_of_one_core": 100.0 * server_cpu_s / result["seconds"],  # type: ignore[operator]
             }
         if rt.rt_priority is not None:  # back to ordinary scheduling for the tear-down
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
