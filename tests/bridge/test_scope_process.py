@@ -57,12 +57,16 @@ def ends(pidfd: int) -> bool:
     return bool(ready)
 
 
-def start_bridge(tmp_path: Path) -> tuple[subprocess.Popen[str], str]:
+def start_bridge(
+    tmp_path: Path, scope: bool = True, until: str = "bridge run: scope at "
+) -> tuple[subprocess.Popen[str], str]:
+    """``bridge run`` waiting for its drive, read up to the stderr line starting ``until``;
+    returns the process and the scope's address ("" without it)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     argv = [
         *(sys.executable, "-m", "bridge", "run", "--interface", "virtual", "--channel", "scope"),
         *("--axis", str(PAPER_AXIS), "--clock", "lockstep", "--seconds", "1"),
-        *("--store", str(tmp_path / "store.json"), "--scope"),
+        *("--store", str(tmp_path / "store.json"), *(["--scope"] if scope else [])),
     ]
     proc = subprocess.Popen(
         argv,
@@ -73,13 +77,15 @@ def start_bridge(tmp_path: Path) -> tuple[subprocess.Popen[str], str]:
         start_new_session=True,  # its own process group: the test's Ctrl-C reaches it alone
     )
     assert proc.stderr is not None
-    seen = []
+    seen, url = [], ""
     while True:
         line = proc.stderr.readline()
         seen.append(line)
         assert line, ("bridge run ended before its scope line", seen, proc.wait())
         if line.startswith("bridge run: scope at "):
-            return proc, line.split()[4]
+            url = line.split()[4]
+        if line.startswith(until):
+            return proc, url
 
 
 def answers(url: str) -> int:
@@ -92,10 +98,12 @@ def answers(url: str) -> int:
 def test_the_scope_server_ends_with_the_bridge(tmp_path: Path, end: str) -> None:
     proc, url = start_bridge(tmp_path)
     try:
+        # served while the bridge lives; once it has answered, the server has surely finished
+        # its exec (a process just past it may still show an empty command line)
+        assert answers(url) == 200
         server = scope_server_pid(proc.pid)
         pidfd = os.pidfd_open(server)
         try:
-            assert answers(url) == 200  # served while the bridge lives
             if end == "ctrl-c":
                 os.killpg(proc.pid, signal.SIGINT)
                 out, err = proc.communicate(timeout=BOUND_S)
@@ -113,3 +121,29 @@ def test_the_scope_server_ends_with_the_bridge(tmp_path: Path, end: str) -> None
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+
+
+#: the lockstep start-up's word that it waits for the drive (both runs reach it)
+WAITING = "WARNING bridge: drive 2 does not answer yet"
+
+
+def threads(pid: int) -> int:
+    return len(list(Path(f"/proc/{pid}/task").iterdir()))
+
+
+def test_the_scope_leaves_no_thread_in_the_bridge(tmp_path: Path) -> None:
+    """The bridge's process has as many threads with the scope served as without it: the
+    server and its drain are in the server's process."""
+    counts = {}
+    for scope in (False, True):
+        proc, url = start_bridge(tmp_path, scope=scope, until=WAITING)
+        try:
+            counts[scope] = threads(proc.pid)
+            if scope:
+                assert answers(url) == 200
+                server = scope_server_pid(proc.pid)
+                assert threads(server) >= 2  # its parent watch and its drain live there
+        finally:
+            proc.kill()
+            proc.communicate()
+    assert counts[True] == counts[False], counts

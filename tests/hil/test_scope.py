@@ -184,7 +184,6 @@ def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
                 url = line.split()[4]
                 break
         assert url.startswith("http://127.0.0.1:") and url.endswith("/"), url
-        server = os.pidfd_open(scope_server_pid(proc.pid))
         page, problem, methods = None, "", None
         try:
             page = open_page(
@@ -197,6 +196,8 @@ def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
         except Exception as exc:  # the waits failed: said with what the bridge said
             problem = repr(exc)
         else:
+            # the server has answered the page: past its exec, its command line is its own
+            server = os.pidfd_open(scope_server_pid(proc.pid))
             methods = subprocess.run(
                 ns.command([sys.executable, "-c", METHODS, url]),
                 capture_output=True,
