@@ -493,7 +493,7 @@ class CycleController:
         if low < p.position_limit_min or high > p.position_limit_max:
             raise ParameterError(
                 f"move refused: {what} load units leaves the software position limits "
-                f"2014h [{p.position_limit_min:g}, {p.position_limit_max:g}]",
+                f"2014h [{p.position_limit_min:g}, {p.position_limit_max:g}] load units",
                 field="target",
                 value=item.target if isinstance(item, Move) else (low, high),
                 abort_code=SdoAbort.TOO_LOW if low < p.position_limit_min else SdoAbort.TOO_HIGH,
@@ -687,20 +687,21 @@ class CycleController:
             self._stop(
                 StopReason.FOLLOWING_ERROR,
                 f"following error {self.following_error:.6g} load units exceeds 2008h = "
-                f"{p.following_error_limit:g}",
+                f"{p.following_error_limit:g} load units",
             )
         elif code == K.DISCREPANCY:
             self._stop(
                 StopReason.ENCODER_DISCREPANCY,
                 f"motor encoder and load scale differ by {self.motor_load_difference:.6g} "
-                f"load units since enable, above 2009h = {p.discrepancy_limit:g}",
+                f"load units since enable, above 2009h = {p.discrepancy_limit:g} load units",
             )
         elif code == K.POSITION_LIMIT:
             low, high = p.position_limit_min, p.position_limit_max
             self._stop(
                 StopReason.POSITION_LIMIT,
                 f"load position {self.load_position:.9g} load units outside the software "
-                f"position limits 2014h [{low:g}, {high:g}] and no move heads back inside",
+                f"position limits 2014h [{low:g}, {high:g}] load units and no move heads back "
+                "inside",
             )
         elif code == K.NOT_FINITE:  # the regulator package's error, as its classes raise it
             require_finite_input("x_ref", self.interpolator.position)

@@ -91,18 +91,18 @@ def _stop_reason(
     if code == cycle.FOLLOWING_ERROR and params is not None:
         return (
             f"following error {c[cycle.Y_ERROR]:.6g} load units exceeds 2008h = "
-            f"{params.following_error_limit:g}"
+            f"{params.following_error_limit:g} load units"
         )
     if code == cycle.DISCREPANCY and params is not None:
         return (
             f"motor encoder and load scale differ by {difference:.6g} load units since "
-            f"enable, above 2009h = {params.discrepancy_limit:g}"
+            f"enable, above 2009h = {params.discrepancy_limit:g} load units"
         )
     if code == cycle.POSITION_LIMIT and params is not None:
         return (
             f"load position {x_l:.9g} load units outside the software position limits 2014h "
-            f"[{params.position_limit_min:g}, {params.position_limit_max:g}] and no move "
-            "heads back inside"
+            f"[{params.position_limit_min:g}, {params.position_limit_max:g}] load units and no "
+            "move heads back inside"
         )
     return "a non-finite position or speed (the plant diverged)"
 

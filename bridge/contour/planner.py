@@ -134,8 +134,9 @@ def _check_travel(blocks: Sequence[Block], axes: Sequence[AxisLimits]) -> None:
         for k, ax in enumerate(axes):
             if lo[k] < ax.position_min or hi[k] > ax.position_max:
                 raise ContourError(
-                    f"block {i} reaches {ax.name} = {lo[k]:.6g}..{hi[k]:.6g}, outside the "
-                    f"travel limits of axis {ax.name} [{ax.position_min:g}, {ax.position_max:g}]"
+                    f"block {i} reaches {ax.name} = {lo[k]:.6g}..{hi[k]:.6g} load units, outside "
+                    f"the travel limits of axis {ax.name} [{ax.position_min:g}, "
+                    f"{ax.position_max:g}] load units"
                 )
 
 
@@ -149,7 +150,7 @@ def _tangential_accel(b: Block, axes: Sequence[AxisLimits], limits: PathLimits, 
             raise ContourError(
                 f"block {i}: feed {b.feed:.6g} load units/s runs axis {ax.name} at up to "
                 f"{b.feed * cos[k]:.6g}, above its speed limit {ax.speed_max:.6g}; allowed "
-                f"feed <= {allowed:.6g}"
+                f"feed <= {allowed:.6g} load units/s"
             )
     if isinstance(seg, Line):
         a = limits.accel
@@ -164,7 +165,7 @@ def _tangential_accel(b: Block, axes: Sequence[AxisLimits], limits: PathLimits, 
         raise ContourError(
             f"block {i}: feed {b.feed:.6g} load units/s on a radius of {seg.radius:.6g} needs a "
             f"centripetal acceleration of {normal:.6g} load units/s², not below the limit "
-            f"{a_max:.6g}; allowed feed < {allowed:.6g}"
+            f"{a_max:.6g}; allowed feed < {allowed:.6g} load units/s"
         )
     return math.sqrt(a_max**2 - normal**2)
 

@@ -218,7 +218,7 @@ def test_run_applies_the_parameter_store(
     store = _store(tmp_path / "s.json", {"2008h:00": struct.pack("<f", 1e-4).hex()})
     argv = run_on(channel, "--move", "target=0.01,feed=0.05", "--clock", "lockstep")
     assert main([*argv, "--store", str(store)]) == 1
-    assert "2008h = 0.0001" in capsys.readouterr().out
+    assert "2008h = 0.0001 load units" in capsys.readouterr().out
 
 
 def test_run_refuses_a_store_it_would_refuse(tmp_path: Path, capsys) -> None:

@@ -120,7 +120,7 @@ def test_hil_tune_stops_on_a_safety_limit(
     argv += ["--feed", "0.05", "--low-feed", "0.02"]
     code = main([*argv, "--torque-limit", "150", "--following-error-limit", "0.001"])
     err = capsys.readouterr().err
-    assert code == 1 and "following error" in err and "exceeds 2008h = 0.001" in err
+    assert code == 1 and "following error" in err and "exceeds 2008h = 0.001 load units" in err
 
 
 def test_hil_freqresp_writes_the_bode_figure(
