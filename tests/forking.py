@@ -23,15 +23,15 @@ import sys
 import traceback
 from collections.abc import Sequence
 from pathlib import Path
-from types import TracebackType
 
 from tests.paths import ROOT
+from virtual_bus.closing import Closing
 
 #: Backstop of a wait for the forker's answer (far beyond a cold import on a busy machine).
 ANSWER_BACKSTOP_S = 900.0
 
 
-class Forker:
+class Forker(Closing):
     """The warm process (see the module docstring); ``with`` ends it."""
 
     def __init__(self, modules: Sequence[str], env: dict[str, str] | None = None) -> None:
@@ -82,15 +82,8 @@ class Forker:
         """How the child ended: ``exit N`` or ``signal N``."""
         return str(self._answer()["status"])
 
-    def __enter__(self) -> Forker:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def close(self) -> None:
+        """Ask the forker to end (close its stdin) and reap it; ``with`` calls this."""
         assert self.proc.stdin is not None
         self.proc.stdin.close()
         try:

@@ -11,9 +11,10 @@ import canopen
 import pytest
 
 from plant_sim.drive import DriveConfig, TimeMode
-from plant_sim.drive.process import DriveProcessConfig, serve
+from plant_sim.drive.process import DriveProcessConfig
 from tests.bridge_helpers import AXIS
 from tests.paths import ROOT
+from tests.serving import drive_in_thread
 
 SIM_EDS = ROOT / "config" / "drive.eds"
 #: Backstop of the waits of these fixtures (a thread that hangs; never reached when all is well).
@@ -27,28 +28,9 @@ def served() -> Iterator[tuple[str, threading.Event, list]]:
     drive (once booted)."""
     channel = f"halt-{uuid.uuid4().hex[:10]}"
     bus = can.Bus(interface="virtual", channel=channel)
-    stop, booted = threading.Event(), threading.Event()
-    drives: list = []
-    errors: list[BaseException] = []
-
-    def body() -> None:
-        config = DriveProcessConfig(AXIS, drive=DriveConfig(time_mode=TimeMode.REAL_TIME))
-        try:
-            serve(config, bus, stop, ready=lambda d: (drives.append(d), booted.set()))
-        except BaseException as exc:
-            errors.append(exc)
-            booted.set()
-
-    thread = threading.Thread(target=body, name="drive")
-    thread.start()
-    try:
-        assert booted.wait(BOUND_S) and not errors, errors
+    config = DriveProcessConfig(AXIS, drive=DriveConfig(time_mode=TimeMode.REAL_TIME))
+    with drive_in_thread(config, bus, BOUND_S) as (stop, drives):
         yield channel, stop, drives
-    finally:
-        stop.set()
-        thread.join(BOUND_S)
-        bus.shutdown()
-    assert not errors, errors
 
 
 @pytest.fixture

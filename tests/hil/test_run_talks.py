@@ -41,6 +41,7 @@ from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
 from plant_sim.paper.scenarios import SectionX
 from regulator import RegulatorConfig
 from tests.command_line import next_line
+from tests.hil.test_two_processes import READER
 from tests.paths import ROOT
 from virtual_bus import BusConfig, Interface
 from virtual_bus.formats.axis import dump_axis, load_axis
@@ -200,18 +201,6 @@ def test_on_a_terminal_the_run_shows_its_plan_live_lines_and_a_verdict(
     assert fe is not None, verdict
     assert _metres(fe[1], fe[2]) == pytest.approx(FEED_M_S / 25.0, rel=0.2)  # eq. 7
     assert "stop: moves done, held 500 ms" in verdict
-
-
-READER = """
-import json
-from tests.hil.test_two_processes import read_drive
-from virtual_bus import BusConfig, open_bus
-bus = open_bus(BusConfig(interface="udp_multicast"))
-try:
-    print(json.dumps(read_drive(bus)))
-finally:
-    bus.shutdown()
-"""
 
 
 def test_json_on_a_pipe_no_live_line_and_the_drives_end_position(

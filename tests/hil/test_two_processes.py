@@ -11,7 +11,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import threading
 import time
 import uuid
 from collections.abc import Iterator
@@ -22,9 +21,10 @@ import canopen
 import pytest
 
 from bridge.__main__ import main as bridge_main
-from plant_sim.drive.process import DriveProcessConfig, serve
+from plant_sim.drive.process import DriveProcessConfig
 from tests.command_line import next_line
 from tests.paths import ROOT
+from tests.serving import drive_in_thread
 from virtual_bus import BusConfig, Interface, open_bus
 from virtual_bus.formats.axis import load_axis
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
@@ -105,26 +105,8 @@ def served(bus_mode: Interface) -> Iterator[BusConfig]:
     else:
         config = BusConfig(interface=Interface.VIRTUAL, channel=f"two-{uuid.uuid4().hex[:10]}")
     bus = open_bus(config)
-    stop, booted = threading.Event(), threading.Event()
-    errors: list[BaseException] = []
-
-    def body() -> None:
-        try:
-            serve(DriveProcessConfig(load_axis(AXIS_FILE)), bus, stop, ready=lambda _: booted.set())
-        except BaseException as exc:
-            errors.append(exc)
-            booted.set()
-
-    thread = threading.Thread(target=body, name="drive")
-    thread.start()
-    try:
-        assert booted.wait(BOOT_TIMEOUT_S) and not errors, errors
+    with drive_in_thread(DriveProcessConfig(load_axis(AXIS_FILE)), bus, BOOT_TIMEOUT_S):
         yield config
-    finally:
-        stop.set()
-        thread.join(10.0)
-        bus.shutdown()
-    assert not errors, errors
 
 
 def test_bridge_run_against_the_served_drive_in_process(served: BusConfig, tmp_path: Path) -> None:

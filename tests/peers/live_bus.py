@@ -91,24 +91,25 @@ class Program:
 
     def wait_for(self, condition: Callable[[list[str]], bool], what: str) -> None:
         """Until ``condition(lines)``; fails (naming ``what``) if the program ends first."""
-        deadline = time.monotonic() + STATE_BOUND_S
-        with self._changed:
-            while not condition(self.lines):
-                if self.proc.poll() is not None and not self._threads[0].is_alive():
-                    raise AssertionError(
-                        f"{self.name} ended (exit {self.proc.returncode}) before {what}; "
-                        f"stderr: {self.stderr[-1500:]}"
-                    )
-                if time.monotonic() > deadline:
-                    raise AssertionError(f"{self.name}: no {what} in {STATE_BOUND_S:g} s")
-                self._changed.wait(1.0)
+        self._wait(self.lines, 0, condition, what)
 
     def wait_for_err(self, condition: Callable[[list[str]], bool], what: str) -> None:
         """:meth:`wait_for` on the lines of standard error (a program's log)."""
+        self._wait(self._err, 1, condition, what)
+
+    def _wait(
+        self,
+        lines: list[str],
+        reader: int,
+        condition: Callable[[list[str]], bool],
+        what: str,
+    ) -> None:
+        """The one wait of :meth:`wait_for` and :meth:`wait_for_err`: ``lines`` is the list
+        that ``self._threads[reader]`` fills; ends when the program and that reader are done."""
         deadline = time.monotonic() + STATE_BOUND_S
         with self._changed:
-            while not condition(self._err):
-                if self.proc.poll() is not None and not self._threads[1].is_alive():
+            while not condition(lines):
+                if self.proc.poll() is not None and not self._threads[reader].is_alive():
                     raise AssertionError(
                         f"{self.name} ended (exit {self.proc.returncode}) before {what}; "
                         f"stderr: {self.stderr[-1500:]}"
