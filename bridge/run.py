@@ -22,7 +22,7 @@ import logging
 import math
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -47,11 +47,14 @@ from .objects import params_with_store
 from .params import BridgeParams
 from .recorder import BusLog, TraceRecorder, log_channel
 from .scaling import LOAD_INCREMENTS_PER_UNIT
-from .status import Watch
 from .store import ParameterStore
 from .timing import DEFAULT_LOCKSTEP_WAIT_S, LockstepPacer, Pacer, RealTimePacer, TimeMode
 
 log = logging.getLogger("bridge")
+
+#: ``RunOptions.watch``: called with the bridge built and the run's options (bridge.status's
+#: RunTalk, bridge.scope's Scope).
+Watch = Callable[[Bridge, "RunOptions"], None]
 
 
 @dataclass(frozen=True)

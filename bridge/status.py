@@ -50,8 +50,6 @@ if TYPE_CHECKING:
     from .node import Bridge
     from .run import RunOptions
 
-#: ``RunOptions.watch``: called with the bridge built and the run's options.
-Watch = Callable[["Bridge", "RunOptions"], None]
 #: How often the live line is rewritten (wall clock), s.
 LIVE_INTERVAL_S = 0.25
 #: A target counts as reached when the load ends this close to it (load units: 10 µm or

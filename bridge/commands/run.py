@@ -22,8 +22,7 @@ from .common import add_clock_argument, default_store_path, regulated_axis
 
 if TYPE_CHECKING:
     from ..node import Bridge
-    from ..run import RunOptions
-    from ..status import Watch
+    from ..run import RunOptions, Watch
 
 NAME = "run"
 HELP = "run the bridge against a drive on a CAN interface (real time)"
