@@ -18,15 +18,16 @@ import numpy as np
 import pytest
 
 from bridge.commission.freqresp import ExcitationPlan
+from bridge.commission.tune import TuneOptions, axis_limits, make_ladder
 from hil.loop import run_loop, trial_runner
-from hil.offline import frequency_response, plant_runner, safety_of
+from hil.offline import frequency_response, safety_of, tune_offline
 from plant_sim.fmu.arguments import AxisSource
 from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
 from plant_sim.paper.scenarios import SectionX
 from reference_plants.independent import SteppedPlant
 from regulator import RegulatorConfig
 from regulator.frequency_response import Multisine
-from regulator.tuning import Outcome, SearchConfig, TuningMotion, search
+from regulator.tuning import Outcome, search
 from tests.paths import CONFIG
 from virtual_bus.formats.axis import AxisConfig, load_axis
 
@@ -55,10 +56,8 @@ def _section_x(axis: AxisConfig, beta_t: float | None) -> tuple[float, float]:
 
 def _found_on_the_kernel() -> float:
     """The procedure on the project's own simulated axis (what `hil tune` runs)."""
-    profile = TuningMotion().profile(CYCLE_S, KV).repeated(2)
-    safety = safety_of(LIMIT_CYCLE, 0.01, 150.0)
-    run = plant_runner(AxisSource(LIMIT_CYCLE, "limit cycle"), profile, safety)
-    result = search(run, profile, SearchConfig(), CYCLE_S, KV, 1e-6)
+    source = AxisSource(LIMIT_CYCLE, "limit cycle")
+    result = tune_offline(source, TuneOptions(torque_limit=150.0), 0.01)
     assert result.outcome is Outcome.FOUND, result.reason
     assert result.beta_t_rad_s is not None
     return result.beta_t_rad_s
@@ -81,23 +80,25 @@ def test_beta_t_found_on_the_kernel_cuts_the_independent_plants_limit_cycle() ->
     keeps = [r[1] <= max(1.1 * ordinary_standstill, ordinary_standstill + 20e-9) for r in results]
     best = min((r[0], b) for r, b, k in zip(results, grid, keeps, strict=True) if k)
     optimum_cut = 1.0 - best[0] / ordinary_p2p
-    assert optimum_cut >= cut >= optimum_cut - 0.1  # within 10 points of the best one
+    # within 10 points of the grid's best (it may beat the grid, which is coarse)
+    assert cut >= optimum_cut - 0.1
     assert best[1] / 4 <= beta_t <= best[1] * 4  # the same region, not another regime
 
 
 def test_the_procedure_on_the_independent_plant_finds_a_beta_t_that_works_there() -> None:
     """The procedure itself run on the foreign plant (its trials on that plant): found, and
     its beta_T cuts that plant's section X limit cycle by at least 90 %."""
-    profile = TuningMotion().profile(CYCLE_S, KV).repeated(2)
+    options = TuneOptions(torque_limit=150.0)
+    safety = safety_of(LIMIT_CYCLE, 0.01, 150.0)
+    limits = axis_limits(LIMIT_CYCLE, options, 0.01, (safety.position_min, safety.position_max))
     run = trial_runner(
         lambda start: SteppedPlant(LIMIT_CYCLE, position=start),
-        profile.position,
-        profile.speed,
         KR,
         RegulatorConfig(kv=KV, cycle_s=CYCLE_S),
-        safety_of(LIMIT_CYCLE, 0.01, 150.0),
+        safety,
     )
-    result = search(run, profile, SearchConfig(), CYCLE_S, KV, 1e-6)
+    ladder = make_ladder(options, limits, 0.0, True, "")
+    result = search(run, ladder, options.search, CYCLE_S, KV, options.standstill_limit)
     assert result.outcome is Outcome.FOUND, result.reason
     assert result.beta_t_rad_s is not None
     ordinary_p2p, _ = _section_x(LIMIT_CYCLE, None)
