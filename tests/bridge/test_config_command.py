@@ -61,6 +61,12 @@ class Nodes:
             self.channel,
             "--node-id",
             str(node_id),
+            # a guest on a host with both CPUs busy once answered after the default 1 s:
+            # canopen's client asked again and then read the late answer of the object
+            # before ("Node returned a value for 0x2110:00 instead"); a test's own --timeout
+            # comes after and wins
+            "--timeout",
+            "10",
             *rest,
         ]
 
