@@ -1,11 +1,15 @@
 """The simulated drive served (:func:`plant_sim.drive.process.serve`) in a thread, for the
-tests that talk to it over a bus they own."""
+tests that talk to it over a bus they own, or as its own process in a network namespace."""
 
 from __future__ import annotations
 
+import os
+import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 from plant_sim.drive.process import DriveProcessConfig, serve
@@ -40,3 +44,24 @@ def drive_in_thread(
         thread.join(bound_s)
         bus.shutdown()
     assert not errors, errors
+
+
+@contextmanager
+def drive_process_in(ns: Any, axis: Path, *extra: str, bound_s: float) -> Iterator[Any]:
+    """``python -m plant_sim drive`` on udp_multicast in the network namespace ``ns``
+    (:class:`virtual_bus.netns.NetworkNamespace`) with ``axis`` and the options ``extra``:
+    yields once it said its boot-up went out, SIGTERM and its end afterwards. ``bound_s``:
+    backstop of the wait for its boot-up line."""
+    from tests.command_line import next_line
+    from tests.paths import ROOT
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    argv = [sys.executable, "-m", "plant_sim", "drive", "--interface", "udp_multicast"]
+    drive = ns.popen([*argv, "--axis", str(axis), *extra], env=env)
+    try:
+        line = next_line(drive, bound_s)
+        assert line.startswith("drive 2: boot-up sent"), (line, drive.poll())
+        yield drive
+    finally:
+        drive.send_signal(signal.SIGTERM)
+        drive.communicate(timeout=60)

@@ -19,7 +19,6 @@ import json
 import os
 import pty
 import re
-import signal
 import struct
 import subprocess
 import sys
@@ -40,9 +39,9 @@ from hil.harness import play_references, simulated_axis
 from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
 from plant_sim.paper.scenarios import SectionX
 from regulator import RegulatorConfig
-from tests.command_line import next_line
 from tests.hil.test_two_processes import READER
 from tests.paths import ROOT
+from tests.serving import drive_process_in
 from virtual_bus import BusConfig, Interface
 from virtual_bus.formats.axis import dump_axis, load_axis
 from virtual_bus.formats.trace import read_trace
@@ -96,17 +95,8 @@ def udp_drive(
     """A namespace with the simulated drive (real-time clock) serving in it."""
     if netns_skip_reason is not None:
         pytest.skip(netns_skip_reason)
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    with NetworkNamespace.create() as ns:
-        argv = [sys.executable, "-m", "plant_sim", "drive", "--interface", "udp_multicast"]
-        drive = ns.popen([*argv, "--axis", str(files[0])], env=env)
-        try:
-            line = next_line(drive, BOUND_S)
-            assert line.startswith("drive 2: boot-up sent"), (line, drive.poll())
-            yield ns
-        finally:
-            drive.send_signal(signal.SIGTERM)
-            drive.communicate(timeout=60)
+    with NetworkNamespace.create() as ns, drive_process_in(ns, files[0], bound_s=BOUND_S):
+        yield ns
 
 
 def _bridge_argv(files: tuple[Path, Path], *extra: str) -> list[str]:

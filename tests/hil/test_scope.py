@@ -38,8 +38,8 @@ import pytest
 
 from tests.chromium import PageCheck as Page
 from tests.chromium import chromium_problem, open_page, write_screenshot
-from tests.command_line import next_line
 from tests.paths import ROOT
+from tests.serving import drive_process_in
 from virtual_bus.formats.axis import dump_axis, load_axis
 from virtual_bus.formats.trace import read_trace
 from virtual_bus.netns import UDP_GROUP, NetworkNamespace
@@ -84,17 +84,11 @@ def udp_drive(netns_skip_reason: str | None, axis_file: Path) -> Iterator[Networ
         pytest.skip(netns_skip_reason)
     if chromium_problem() is not None:
         pytest.skip(chromium_problem())
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    with NetworkNamespace.create() as ns:
-        argv = [sys.executable, "-m", "plant_sim", "drive", "--interface", "udp_multicast"]
-        drive = ns.popen([*argv, "--axis", str(axis_file), "--clock", "lockstep"], env=env)
-        try:
-            line = next_line(drive, BOUND_S)
-            assert line.startswith("drive 2: boot-up sent"), (line, drive.poll())
-            yield ns
-        finally:
-            drive.send_signal(signal.SIGTERM)
-            drive.communicate(timeout=60)
+    with (
+        NetworkNamespace.create() as ns,
+        drive_process_in(ns, axis_file, "--clock", "lockstep", bound_s=BOUND_S),
+    ):
+        yield ns
 
 
 # --- what the test asks the page (JavaScript, evaluated in order) ---
