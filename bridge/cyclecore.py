@@ -7,7 +7,8 @@ parameters the cycle reads and the raw values of the received TPDOs in one vecto
 functions do the per-SYNC arithmetic on it:
 
 * :func:`measure`: the raw TPDO values -> SI measurements, extrapolation over a missing
-  frame, the count of cycles without a complete set (docs/bridge.md, "The cycle", step 1);
+  frame with the drive's measured motor speed, the count of cycles without a complete set
+  (docs/bridge.md, "The cycle", step 1);
 * :func:`running`: steps 4 and 5 of a running axis: eq. 7 (plus the velocity feed-forward),
   the following-error / encoder-discrepancy / software-limit checks, the vibration detector
   (Fig. 5) and eq. 15 from :mod:`regulator.core`, the clamp to 2007h and the set point in
@@ -75,7 +76,6 @@ S_FOLLOWING_ERROR = rcycle.Y_ERROR  # load units
     S_MOTOR_SPEED,  # rad/s
     S_TORQUE,  # N·m (or per mille, see bridge.scaling)
     S_STATUSWORD,
-    S_LOAD_SPEED,  # load units/s, for extrapolation
     S_HAVE_SAMPLE,  # 1.0 once a load sample came
     S_STATUS_IN,  # 1.0: the statusword came with this cycle's frames
     S_CONSECUTIVE_MISSED,  # cycles in a row without a complete set
@@ -89,7 +89,7 @@ S_FOLLOWING_ERROR = rcycle.Y_ERROR  # load units
     R_TORQUE,
     R_MOTOR_VELOCITY,
     V_SIZE,
-) = range(rcycle.BLOCK_SIZE, rcycle.BLOCK_SIZE + 30)
+) = range(rcycle.BLOCK_SIZE, rcycle.BLOCK_SIZE + 29)
 
 #: Raw value index of each :class:`bridge.layout.Signal` value (the CiA 402 object).
 RAW_INDEX = {
@@ -137,12 +137,12 @@ def measure(v: Any, frames: int) -> None:
     else:
         load = v[R_LOAD_POSITION] * v[P_UNIT_PER_INC]
     if load_in:
-        if have:
-            v[S_LOAD_SPEED] = (load - v[S_LOAD_POSITION]) / v[P_CYCLE]
         v[S_LOAD_POSITION] = load
         v[S_HAVE_SAMPLE] = 1.0
-    elif have:
-        v[S_LOAD_POSITION] += v[S_LOAD_SPEED] * v[P_CYCLE]
+    elif have:  # the drive's measured motor speed, never a difference of two samples: those
+        # may lie many cycles apart (SYNC slots skipped), and one cycle's worth of that
+        # difference, extrapolated, was a speed the axis never had (docs/bridge.md, step 1)
+        v[S_LOAD_POSITION] += speed / v[P_KR] * v[P_CYCLE]
     if frames != int(v[P_ALL_FRAMES]):
         v[S_CONSECUTIVE_MISSED] += 1.0
         v[S_MISSED_CYCLES] += 1.0

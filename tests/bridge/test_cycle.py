@@ -107,6 +107,36 @@ def test_missing_tpdos_are_bridged_until_the_tolerance_then_the_axis_stops() -> 
     assert c.stop_reason is StopReason.NONE
 
 
+def test_lost_tpdos_after_skipped_sync_slots_move_on_at_the_measured_speed() -> None:
+    """Fifty SYNC slots skipped (the drive keeps its last set point meanwhile), one cycle
+    with frames, then three lost: the extrapolation moves the load on at the drive's measured
+    motor speed over k_r, not at the difference of the two samples fifty cycles apart taken as
+    one cycle's (51 times the speed the axis has); the set point stays the axis's own."""
+    c = controller(pdo_loss_tolerance=3)
+    drive = PayloadDrive(AXIS)
+    c.queue_move(Move(0.1, 0.05))
+    for k in range(200):
+        drive.advance(bytes(c.step(k * 0.001, *drive.tpdos())), 0.0)
+    rpdo = c.step(0.200, *drive.tpdos())
+    for _ in range(51):  # SYNCs 201-250 skipped: the drive runs on with the last set point
+        drive.advance(bytes(rpdo), 0.0)
+    rpdo = c.step(0.251, *drive.tpdos())
+    assert c.state is BridgeState.RUNNING
+    x_measured = c.load_position
+    load_speed = drive.plant.motor_speed_rad_s / AXIS.transmission_ratio
+    assert load_speed == pytest.approx(0.05, rel=0.05)  # the move's feed, measured
+    set_points = []
+    for k in range(252, 255):  # three lost cycles
+        drive.advance(bytes(rpdo), 0.0)
+        rpdo = c.step(k * 0.001, None, None)
+        assert c.state is BridgeState.RUNNING
+        set_points.append(RPDO1_STRUCT.unpack(rpdo)[1] / MOTOR_INCREMENTS_PER_RAD)
+    assert c.load_position == pytest.approx(x_measured + 3 * 0.001 * load_speed, rel=1e-9)
+    # eq. 7 on the extrapolated feedback: the set point stays near the feed's motor speed
+    # (the sample difference taken as one cycle's would have asked for some 50 times it)
+    assert max(abs(w) for w in set_points) < 2.0 * 0.05 * AXIS.transmission_ratio
+
+
 def _running(**changes: object) -> tuple[CycleController, PayloadDrive]:
     c = controller(**changes)
     drive = PayloadDrive(AXIS)
