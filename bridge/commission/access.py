@@ -284,14 +284,24 @@ def value_text(var: ODVariable, value: Value) -> str:
     return str(value)
 
 
-def display(var: ODVariable, value: Value) -> str:
-    """One line: ``2000h:00 Position gain kv = 25 1/s``; unsigned integers also in decimal."""
+def _shown(var: ODVariable, value: Value) -> str:
     text = value_text(var, value)
     if var.data_type in dt.UNSIGNED_TYPES:
         text = f"{int(value)} ({text})"
     elif var.data_type in (dt.VISIBLE_STRING, dt.UNICODE_STRING):
         text = repr(value)
-    return f"{key_text(var)} {var.name} = {text}{_unit(var)}"
+    return f"{text}{_unit(var)}"
+
+
+def display(var: ODVariable, value: Value) -> str:
+    """One line: ``2000h:00 Position gain kv = 25 1/s``; unsigned integers also in decimal."""
+    return f"{key_text(var)} {var.name} = {_shown(var, value)}"
+
+
+def display_change(var: ODVariable, before: Value, after: Value) -> str:
+    """:func:`display` of ``after`` and what it replaced, both with the unit:
+    ``2014h:02 Max position limit = 0.35 load unit (was 2.0 load unit)``."""
+    return f"{display(var, after)} (was {_shown(var, before)})"
 
 
 # --- SDO --------------------------------------------------------------------------------------

@@ -51,6 +51,7 @@ from .access import (
     Value,
     abort_text,
     display,
+    display_change,
     encode,
     key_text,
     parse_value,
@@ -253,10 +254,7 @@ def _set(args: argparse.Namespace) -> int:
         before = access.read(var) if readable else None
         access.write(var, value)
         if readable:
-            was = value_text(var, before)
-            if var.data_type in dt.UNSIGNED_TYPES:  # decimal first, as display() shows the new one
-                was = f"{int(before)} ({was})"  # type: ignore[arg-type]
-            print(f"{display(var, access.read(var))} (was {was})")  # type: ignore[arg-type]
+            print(display_change(var, before, access.read(var)))  # type: ignore[arg-type]
         else:
             print(f"{key_text(var)} {var.name} <- {value_text(var, value)}")
     return 0

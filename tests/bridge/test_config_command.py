@@ -173,7 +173,7 @@ def test_set_writes_what_canopen_reads_back(
     nodes: Nodes, capsys: pytest.CaptureFixture[str]
 ) -> None:
     code, out, _ = run(nodes.argv("set", 1, "Position gain kv", "30"), capsys)
-    assert (code, out) == (0, "2000h:00 Position gain kv = 30.0 1/s (was 25.0)\n")
+    assert (code, out) == (0, "2000h:00 Position gain kv = 30.0 1/s (was 25.0 1/s)\n")
     assert nodes.node(1).sdo["Position gain kv"].raw == 30.0
     assert nodes.bridge.controller.params.kv_per_s == 30.0
     assert run(nodes.argv("set", 1, "2014sub1", "-0.25"), capsys)[0] == 0
