@@ -65,8 +65,18 @@ def offline_run(
 ) -> Trace:
     """The same run without a bus: the kernel's closed loop with the one-cycle PDO delay, or
     the bridge's loop (:func:`hil.loop.run_loop`) around a fresh instance of the FMU."""
+    return offline_stopped(source, axis, refs, regulator)[0]
+
+
+def offline_stopped(
+    source: AxisSource, axis: AxisConfig, refs: References, regulator: RegulatorConfig
+) -> tuple[Trace, str | None]:
+    """:func:`offline_run` and why the bridge's supervision stopped the FMU's axis (its
+    2008h / 2009h / 2014h, as :func:`hil.loop.run_loop` words it; None: it ran to the end;
+    the kernel's loop has no limits). After a stop the set point is 0 and the axis holds
+    where it stopped, so a figure of the rest of the run says nothing about the law."""
     if source.model is None:
-        return simulate(axis, refs, regulator, KernelOptions(setpoint_delay_cycles=1))
+        return simulate(axis, refs, regulator, KernelOptions(setpoint_delay_cycles=1)), None
     with source.plant(float(refs.position[0]), "offline") as plant:
         rec = run_loop(
             plant,
@@ -78,7 +88,7 @@ def offline_run(
             refs.disturbance_nm,
             BridgeParams.for_axis(axis, regulator),
         )
-    return Trace(
+    trace = Trace(
         {
             "time": np.arange(rec.cycles) * axis.control.position_cycle,
             "position_reference": rec.position_reference,
@@ -87,6 +97,7 @@ def offline_run(
             "lambda": rec.switching_factor,
         }
     )
+    return trace, rec.stop_reason
 
 
 def compare_with_offline(trace: Trace, offline: Trace) -> dict[str, float]:

@@ -1,0 +1,36 @@
+"""``hil sweep tune``: the beta_T procedure on axes of the FMU family (a plant written apart
+from this project, a binary only) and its score, development seeds only (0-199).
+
+The score runs the bridge's own loop with its supervision (2008h, 2009h, 2014h): a run the
+bridge stopped is a halted axis, and its figures after the stop (a standstill error of the
+whole remaining travel) are not the law's. Axis 41 of family 1 is one: under section X's
+disturbance, its motor encoder and load scale drift apart past the default 2009h (0.5 mm)
+with the regulator's beta_T in the loop, while ordinary control stays inside.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from hil.sweep.tasks.tune import REQUIRED_CUT, REQUIRED_STANDSTILL_M, run_tune, summarize_tune
+from plant_sim.fmu import FmuSpec
+from tests.plant_sim.fmu.fmus import family_fmu
+
+
+def _row(seed: int) -> dict[str, object]:
+    spec = FmuSpec.from_text(family_fmu(), f"seed={seed},family=1")
+    return {"seed": seed} | run_tune(spec, {})
+
+
+@pytest.mark.slow
+def test_a_run_the_bridge_stopped_is_not_scored_as_a_standstill() -> None:
+    kept, stopped = _row(0), _row(41)
+    assert kept["outcome"] == stopped["outcome"] == "found"
+    assert kept["stopped"] == kept["stopped_ordinary"] == ""
+    assert kept["reduction"] >= REQUIRED_CUT  # type: ignore[operator]
+    assert kept["standstill_error_m"] <= REQUIRED_STANDSTILL_M  # type: ignore[operator]
+    assert "2009h" in str(stopped["stopped"]) and stopped["stopped_ordinary"] == ""
+    summary = summarize_tune([kept, stopped])
+    assert summary["beta_T found"] == 2
+    assert summary["cut >= 90% and standstill <= 1 um"] == 1
+    assert "2009h" in summary["found, not kept"]["41"]["stopped by the bridge"]
