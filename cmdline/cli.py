@@ -380,6 +380,35 @@ def add_can_bus(
     )
 
 
+def add_output_dir(parser: argparse.ArgumentParser, help: str = "output directory") -> None:
+    """``--out DIR`` (required): a directory the command writes into (:func:`output_dir`)."""
+    parser.add_argument("--out", type=output_dir, required=True, help=help)
+
+
+def add_inputs(
+    parser: argparse.ArgumentParser, name: str, help: str, metavar: str | None = None
+) -> None:
+    """Positional ``name`` (zero or more paths): the files (or folders) a command reads; when
+    none is given the command reads its documented default (``help`` says which)."""
+    parser.add_argument(name, nargs="*", type=Path, metavar=metavar, help=help)
+
+
+def add_dask(parser: argparse.ArgumentParser) -> None:
+    """``--workers N`` (local Dask worker processes, 0..256; 0: in this process, no Dask) and
+    ``--scheduler ADDRESS`` (an existing Dask scheduler instead)."""
+    parser.add_argument(
+        "--workers",
+        type=bounded_int(0, 256),
+        default=2,
+        help="local worker processes, 0..256 (default 2; 0: in this process, no Dask)",
+    )
+    parser.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:8786",
+        help="an existing Dask scheduler instead of local workers",
+    )
+
+
 def add_quiet(parser: argparse.ArgumentParser) -> None:
     """``--quiet``/``-q``: no progress output (results and errors are still printed)."""
     parser.add_argument(

@@ -40,7 +40,7 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
         help="parameter store of 1010h (default: AXIS.bridge-store.json beside the axis file)",
     )
     add_clock_argument(parser)
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="report directory")
+    cli.add_output_dir(parser, "report directory")
 
 
 @contextlib.contextmanager

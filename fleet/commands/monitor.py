@@ -38,12 +38,11 @@ HELP = "condition monitoring of a fleet: vibration episodes, eq. 13 verdicts, ba
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
+    cli.add_inputs(
+        parser,
         "paths",
-        nargs="*",
-        type=Path,
+        "recordings or folders (MACHINE/AXIS/DATE... layout), recursively",
         metavar="PATH",
-        help="recordings or folders (MACHINE/AXIS/DATE... layout), recursively",
     )
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     group = parser.add_mutually_exclusive_group()
@@ -60,15 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="P.toml",
         help="decode candump logs with this drive profile's scaling (config/drives/*.toml)",
     )
-    parser.add_argument(
-        "--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://HOST:8786"
-    )
-    parser.add_argument(
-        "--workers",
-        type=cli.bounded_int(0, 256),
-        default=2,
-        help="local worker processes (default 2; 0 = in this process)",
-    )
+    cli.add_dask(parser)
     parser.add_argument(
         "--growth-limit",
         type=cli.positive_float,

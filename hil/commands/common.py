@@ -46,5 +46,5 @@ def add_axis_and_out(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--axis", type=cli.existing_file, help="axis file (with --fmu default: its data sheet)"
     )
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="report directory")
+    cli.add_output_dir(parser, "report directory")
     add_fmu_arguments(parser)

@@ -109,7 +109,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="X,Y",
         help="the drives' node IDs (default 2,3; the bridge is node 1)",
     )
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="report directory")
+    cli.add_output_dir(parser, "report directory")
     parser.add_argument("--figure", type=cli.new_file, help="also the polar plot here (PNG)")
 
 

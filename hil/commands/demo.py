@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from bridge.scope import add_scope_argument
 
     add_scope_argument(parser, "the live scope of each bus run while the demo runs")
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
+    cli.add_output_dir(parser)
     parser.add_argument(
         "--axis",
         type=Path,

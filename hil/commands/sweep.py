@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seeds", required=True, metavar="N-M,...", help="seeds, e.g. 1000-1299 or 1,5,9"
     )
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="sweep folder")
+    cli.add_output_dir(parser, "sweep folder")
     parser.add_argument(
         "--option",
         type=_option,
@@ -45,15 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="a task option (repeatable)",
     )
-    parser.add_argument(
-        "--workers",
-        type=cli.bounded_int(0, 256),
-        default=2,
-        help="local worker processes (default 2; 0: in this process, no Dask)",
-    )
-    parser.add_argument(
-        "--scheduler", metavar="tcp://HOST:8786", help="an existing Dask scheduler instead"
-    )
+    cli.add_dask(parser)
     add_fmu_arguments(parser)
 
 

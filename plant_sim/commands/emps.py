@@ -8,7 +8,6 @@ timing: docs/emps.md, :mod:`plant_sim.datasets.emps`).
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from cmdline import cli
 
@@ -25,13 +24,12 @@ HELP = "convert the EMPS recordings (.mat) to trace files"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
+    cli.add_inputs(
+        parser,
         "mat",
-        nargs="*",
-        type=Path,
-        help=f"EMPS .mat files; default: {ESTIMATION_FILE} and {VALIDATION_FILE} in {DATA_DIR}",
+        f"EMPS .mat files; default: {ESTIMATION_FILE} and {VALIDATION_FILE} in {DATA_DIR}",
     )
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
+    cli.add_output_dir(parser)
 
 
 def run(args: argparse.Namespace) -> int:

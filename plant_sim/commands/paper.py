@@ -34,7 +34,7 @@ HELP = "reproduce the paper's section X (Fig. 8, Fig. 9, summary.json, traces)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
+    cli.add_output_dir(parser)
     add_axis_argument(parser)
     add_position_cycle_argument(parser, "e.g. 0.0025")
     cli.add_quiet(parser)

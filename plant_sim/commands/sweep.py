@@ -34,7 +34,7 @@ DEFAULT_BACKLASH_MM = (0.05, 0.1, 0.2, 0.4)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
+    cli.add_output_dir(parser)
     add_axis_argument(parser)
     cli.number_list(parser, "--kv", DEFAULT_KV, "k_v values, 1/s")
     cli.number_list(parser, "--backlash-mm", DEFAULT_BACKLASH_MM, "δ values, mm")

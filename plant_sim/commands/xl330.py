@@ -31,13 +31,10 @@ HELP = "convert BAM XL330 pendulum logs (.json) to trace files and axis files"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "log",
-        nargs="*",
-        type=Path,
-        help=f"raw BAM XL330 logs; default: every *.json in {DATA_DIR} ($XL330_DATA)",
+    cli.add_inputs(
+        parser, "log", f"raw BAM XL330 logs; default: every *.json in {DATA_DIR} ($XL330_DATA)"
     )
-    parser.add_argument("--out", type=cli.output_dir, required=True, help="output directory")
+    cli.add_output_dir(parser)
 
 
 def _default_sources() -> list[Path]:
