@@ -14,13 +14,20 @@ The layout (little-endian)::
     message 1 KiB  length u32 | UTF-8 (the controller's stop message)
     slots   capacity x 72 B: seq i64 | 7 x f64 | state i32 | stop i32 (:data:`COLUMNS`)
 
-The writer's per-cycle work is two ``struct.pack_into`` into the mapping: the sample into slot
-``seq % capacity``, then ``write_seq`` (the publication). No lock, no system call, nothing that
-waits for the reader. The reader takes the slots after the last ``seq`` it saw, then reads
-``write_seq`` again and keeps only the slots the writer cannot have overwritten meanwhile
-(and whose stored ``seq`` is the one expected); everything else is counted as dropped. The rare
-blobs (meta, stop message) are written under a sequence lock (generation odd while writing).
-On x86 stores are seen in program order (TSO), so a published ``write_seq`` implies its slot.
+The writer's per-cycle work is a ``struct.pack_into`` of the sample into slot
+``seq % capacity``, then one 8-byte store of ``write_seq`` (the publication). No lock, no system
+call, nothing that waits for the reader. The reader takes the slots after the last ``seq`` it
+saw, then reads ``write_seq`` again and keeps only the slots the writer cannot have
+overwritten meanwhile (and whose stored ``seq`` is the one expected); everything else is
+counted as dropped. The rare blobs (meta, stop message) are written under a sequence lock
+(generation odd while writing). On x86 stores are seen in program order (TSO), so a published
+``write_seq`` implies its slot.
+
+The header's words are read and written through ``memoryview.cast`` views, one aligned load
+or store each, never by ``struct.pack_into``: that zero-fills its bytes before it writes them,
+so a reader could read ``write_seq`` as 0 in the middle of a publication; as the check's
+second read, 0 lets every slot pass, one being overwritten included (a torn sample: seen once
+in 2,351 under load before this).
 """
 
 from __future__ import annotations
@@ -50,7 +57,6 @@ Sample = tuple[int, float, float, float, float, float, float, float, int, int]
 SLOT = struct.Struct("<q7d2i")
 SLOT_BYTES = SLOT.size
 HEADER = struct.Struct("<IIQQIII")
-_SEQ = struct.Struct("<Q")
 _U32 = struct.Struct("<I")
 OFF_WRITE_SEQ = 8
 OFF_DROPPED = 16
@@ -63,6 +69,9 @@ META_BYTES = 8192
 MESSAGE_OFFSET = META_OFFSET + META_BYTES
 MESSAGE_BYTES = 1024
 SLOTS_OFFSET = MESSAGE_OFFSET + MESSAGE_BYTES
+#: The header's words as indices of its 8-byte and 4-byte views (:class:`_Words`).
+W_WRITE_SEQ, W_DROPPED = OFF_WRITE_SEQ // 8, OFF_DROPPED // 8
+U_CLOSED, U_META_GEN, U_MESSAGE_GEN = OFF_CLOSED // 4, OFF_META_GEN // 4, OFF_MESSAGE_GEN // 4
 #: Retries of a blob read that met the writer mid-write before it keeps what it had.
 BLOB_RETRIES = 1000
 
@@ -82,6 +91,19 @@ def _memory_file(size: int) -> int:
     return fd
 
 
+class _Words:
+    """The mapping's 8-byte and 4-byte words (native order: little-endian on the platforms
+    this runs on, as the layout; an item access is one aligned load or store)."""
+
+    def __init__(self, buf: mmap.mmap) -> None:
+        self.u64 = memoryview(buf).cast("Q")
+        self.u32 = memoryview(buf).cast("I")
+
+    def release(self) -> None:
+        self.u64.release()
+        self.u32.release()
+
+
 class RingWriter:
     """The loop's end: :meth:`push` one sample per cycle. ``capacity``: a power of two."""
 
@@ -92,10 +114,11 @@ class RingWriter:
         self.fd = _memory_file(ring_bytes(capacity))
         self.buf = mmap.mmap(self.fd, ring_bytes(capacity))
         HEADER.pack_into(self.buf, 0, MAGIC, capacity, 0, 0, 0, 0, 0)
+        self.words = _Words(self.buf)
         self.seq = 0
         self._mask = capacity - 1
         self._pack = SLOT.pack_into
-        self._publish = _SEQ.pack_into
+        self._u64 = self.words.u64
 
     def push(
         self,
@@ -127,40 +150,42 @@ class RingWriter:
             state,
             stop,
         )
-        self._publish(buf, OFF_WRITE_SEQ, seq)
+        self._u64[W_WRITE_SEQ] = seq  # the publication: one store
 
     def set_meta(self, data: bytes) -> None:
-        _write_blob(self.buf, OFF_META_GEN, META_OFFSET, META_BYTES, data)
+        _write_blob(self.buf, self.words, U_META_GEN, META_OFFSET, META_BYTES, data)
 
     def set_message(self, text: str) -> None:
         _write_blob(
             self.buf,
-            OFF_MESSAGE_GEN,
+            self.words,
+            U_MESSAGE_GEN,
             MESSAGE_OFFSET,
             MESSAGE_BYTES,
             text.encode("utf-8", "replace"),
         )
 
     def mark_closed(self) -> None:
-        _U32.pack_into(self.buf, OFF_CLOSED, 1)
+        self.words.u32[U_CLOSED] = 1
 
     @property
     def dropped(self) -> int:
         """Samples the reader counted as dropped (it writes the count back)."""
-        return int(_SEQ.unpack_from(self.buf, OFF_DROPPED)[0])
+        return int(self.words.u64[W_DROPPED])
 
     def close(self) -> None:
+        self.words.release()
         self.buf.close()
         os.close(self.fd)
 
 
-def _write_blob(buf: Any, gen_off: int, off: int, size: int, data: bytes) -> None:
+def _write_blob(buf: Any, words: _Words, gen: int, off: int, size: int, data: bytes) -> None:
     data = data[: size - 4]
-    gen = _U32.unpack_from(buf, gen_off)[0]
-    _U32.pack_into(buf, gen_off, gen + 1)  # odd: being written
+    g = words.u32[gen]
+    words.u32[gen] = g + 1  # odd: being written
     _U32.pack_into(buf, off, len(data))
     buf[off + 4 : off + 4 + len(data)] = data
-    _U32.pack_into(buf, gen_off, gen + 2)
+    words.u32[gen] = g + 2
 
 
 class RingReader:
@@ -172,17 +197,18 @@ class RingReader:
         magic, self.capacity = HEADER.unpack_from(self.buf, 0)[:2]
         if magic != MAGIC or ring_bytes(self.capacity) != size:
             raise ValueError(f"fd {fd}: not a scope ring")
+        self.words = _Words(self.buf)
         self.last = 0  # the last seq taken
         self.dropped = 0
         self._blobs: dict[int, bytes] = {}
 
     @property
     def write_seq(self) -> int:
-        return int(_SEQ.unpack_from(self.buf, OFF_WRITE_SEQ)[0])
+        return int(self.words.u64[W_WRITE_SEQ])
 
     @property
     def closed(self) -> bool:
-        return bool(_U32.unpack_from(self.buf, OFF_CLOSED)[0])
+        return bool(self.words.u32[U_CLOSED])
 
     def take(self) -> list[Sample]:
         """The samples published since the last take, oldest first; those the writer has
@@ -204,26 +230,27 @@ class RingReader:
         ]
         self.dropped += (head - self.last) - len(kept)
         self.last = head
-        _SEQ.pack_into(self.buf, OFF_DROPPED, self.dropped)
+        self.words.u64[W_DROPPED] = self.dropped
         return kept
 
     def meta(self) -> bytes:
-        return self._blob(OFF_META_GEN, META_OFFSET)
+        return self._blob(U_META_GEN, META_OFFSET)
 
     def message(self) -> str:
-        return self._blob(OFF_MESSAGE_GEN, MESSAGE_OFFSET).decode("utf-8", "replace")
+        return self._blob(U_MESSAGE_GEN, MESSAGE_OFFSET).decode("utf-8", "replace")
 
-    def _blob(self, gen_off: int, off: int) -> bytes:
+    def _blob(self, gen_index: int, off: int) -> bytes:
         for _ in range(BLOB_RETRIES):
-            gen = _U32.unpack_from(self.buf, gen_off)[0]
+            gen = self.words.u32[gen_index]
             if gen & 1:
                 continue
             n = _U32.unpack_from(self.buf, off)[0]
             data = bytes(self.buf[off + 4 : off + 4 + n])
-            if _U32.unpack_from(self.buf, gen_off)[0] == gen:
-                self._blobs[gen_off] = data
+            if self.words.u32[gen_index] == gen:
+                self._blobs[gen_index] = data
                 return data
-        return self._blobs.get(gen_off, b"")
+        return self._blobs.get(gen_index, b"")
 
     def close(self) -> None:
+        self.words.release()
         self.buf.close()

@@ -8,7 +8,10 @@ take, and checks what came out against the sequence it wrote.
 * a reader that falls behind gets the newest samples and counts the rest as dropped (taken +
   dropped = written), and the bridge's end reads that count back;
 * under a writer that never stops (the loop), no sample comes out torn: the reader's
-  re-check of the write sequence throws away every slot the writer may have been rewriting.
+  re-check of the write sequence throws away every slot the writer may have been rewriting;
+* the write sequence, read by the reader while the writer publishes, never goes back (a
+  publication is one store: struct.pack_into's zero-fill first showed it as 0 for a moment,
+  which let the re-check keep every slot).
 """
 
 from __future__ import annotations
@@ -36,6 +39,15 @@ def consistent(r):  # the values the writer derives from the sequence number
     want = (s * 1e-3, -s * 1e-6, s + 0.5, 1.0 / max(s, 1), 2.0 * s, s * 1e-9, -1.0, s % 3, s % 7)
     return s > 0 and r[1:] == want
 for line in sys.stdin:
+    if line.startswith("watch "):  # the write sequence read N times while the writer runs
+        n, last, back = int(line.split()[1]), 0, 0
+        print(json.dumps({"watching": True}), flush=True)
+        for _ in range(n):
+            seq = ring.write_seq
+            back += seq < last
+            last = seq
+        print(json.dumps({"backwards": back, "last": last}), flush=True)
+        continue
     if line.strip() == "follow":  # take until the writer has closed and all is read
         taken = bad = 0
         said = False
@@ -164,3 +176,18 @@ def test_a_reader_racing_the_writer_never_takes_a_torn_sample(
     got = json.loads(reader.proc.stdout.readline())
     assert got["bad"] == 0, got
     assert got["taken"] + got["dropped"] == ring.seq and got["taken"] >= 1000, got
+
+
+def test_the_write_sequence_never_goes_back_while_the_writer_publishes(
+    ring: RingWriter, reader: Reader
+) -> None:
+    assert reader.proc.stdin is not None and reader.proc.stdout is not None
+    reader.proc.stdin.write("watch 300000\n")
+    reader.proc.stdin.flush()
+    assert json.loads(reader.proc.stdout.readline()) == {"watching": True}
+    with selectors.DefaultSelector() as sel:  # the writer runs until the reader has read
+        sel.register(reader.proc.stdout, selectors.EVENT_READ)
+        while not sel.select(0):
+            push(ring, 1000)
+    got = json.loads(reader.proc.stdout.readline())
+    assert got["backwards"] == 0 and 0 < got["last"] <= ring.seq, got
