@@ -108,6 +108,8 @@ MOVING = (
     "c.e[i] !== null) v.push([c.t[i], c.e[i]]); return [scope.samples, scope.lastT, v]; })"
 )
 ERRORS = "[scope.dropped, scope.pushed]"
+#: The page's time window, s of control time (?window=): the whole run the test reads.
+WINDOW_S = 900.0
 FE = "document.querySelectorAll('.uplot').length"
 PAUSE = (
     "(() => { document.getElementById('pause').click(); const n = scope.samples; "
@@ -188,7 +190,10 @@ def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
         page, problem, methods = None, "", None
         try:
             page = open_page(
-                url + "?window=60",
+                # lockstep runs control time faster than the wall's: by the time a starved
+                # page reads the constant feed (2-6 s), the run may be a minute past it, and
+                # the page keeps only its window (FIRST..MOVING once saw nothing in 2-6 s)
+                url + f"?window={WINDOW_S:g}",
                 [FIRST, MOVING, ERRORS, FE, PAUSE, RESUME, STATE],
                 width=1280,
                 height=760,
