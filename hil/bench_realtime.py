@@ -46,9 +46,7 @@ import signal
 import subprocess
 import sys
 import tempfile
-import threading
 import time
-import urllib.request
 from collections.abc import Iterator
 from enum import Enum
 from pathlib import Path
@@ -330,7 +328,7 @@ def realtime_run(
     clock polling before each SYNC (None: its default). ``host_beside``: cyclictest beside
     the loop where it can run (:func:`host_latency_plan`). ``socketcan``: the drive process and
     the bridge on that SocketCAN interface instead of udp_multicast in a namespace. ``scope``:
-    the live scope on (:mod:`bridge.scope`), read by a thread that polls it as its page does."""
+    the live scope on (:mod:`bridge.scope`), read by a process that polls it as its page does."""
     rt = rt or RealTimeOptions()
     axis = axis_at_rate(axis, rate_hz)
     params = bench_params(axis)
@@ -390,6 +388,8 @@ def realtime_run(
             stack.callback(reader.stop)
         bridge.timing = Timing(capacity=cycles + 64)  # no array grows during the run
         drive_cpu0 = _proc_cpu_s(drive_pid) if drive_pid is not None else 0.0
+        scope_pid = None if live is None else live.server_pid
+        scope_cpu0 = _proc_cpu_s(scope_pid) if scope_pid is not None else 0.0
         plan = host_latency_plan(rt) if host_beside else None
         result["cycle_core"] = "compiled (numba)" if bridge.controller.core.compiled else "Python"
         result["frames"] = bridge.frames.kind
@@ -407,45 +407,68 @@ def realtime_run(
         result["stop_message"] = bridge.controller.stop_message
         result["binding_floor"] = binding_floor(result)
         if live is not None:
+            # the scope's server is a process of its own: its CPU is not the loop's process's
+            server_cpu_s = _proc_cpu_s(scope_pid) - scope_cpu0 if scope_pid is not None else 0.0
+            reader.stop()
             result["scope"] = {
                 "samples_handed": live.pushed,
                 "samples_dropped": live.dropped,
                 "reads": reader.reads,
                 "samples_read": reader.samples,
+                "server_cpu_percent_of_one_core": 100.0 * server_cpu_s / result["seconds"],  # type: ignore[operator]
             }
         if rt.rt_priority is not None:  # back to ordinary scheduling for the tear-down
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     return result
 
 
+#: The bench's scope reader (:class:`_ScopeReader`): polls as the page does until its stdin
+#: ends, then prints what it read.
+_READER = """
+import json, sys, threading, urllib.request
+url, poll_s = sys.argv[1], float(sys.argv[2])
+done = threading.Event()
+threading.Thread(target=lambda: (sys.stdin.read(), done.set()), daemon=True).start()
+opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+after = reads = samples = 0
+while not done.wait(poll_s):
+    try:
+        with opener.open(f"{url}data?after={after}") as answer:
+            doc = json.load(answer)
+    except OSError:
+        break  # the scope has closed
+    after = doc["last_seq"]
+    reads += 1
+    samples += len(doc["samples"]["seq"])
+print(json.dumps({"reads": reads, "samples": samples}), flush=True)
+"""
+
+
 class _ScopeReader:
     """A client of the scope doing what its page does: ``GET /data?after=SEQ`` every
-    :data:`SCOPE_POLL_S`, in a thread of the bench's process (the JSON work it causes is
-    the bridge process's, as with a browser)."""
+    :data:`SCOPE_POLL_S`, in a process of its own as a browser is (a thread here would take
+    the loop's interpreter lock: what docs/scope.md measured of the scope's first design)."""
 
     def __init__(self, url: str) -> None:
         self.url = url
         self.reads = 0
         self.samples = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._poll, name="scope-reader", daemon=True)
-        self._thread.start()
-
-    def _poll(self) -> None:
-        after = 0
-        while not self._stop.wait(SCOPE_POLL_S):
-            try:
-                with urllib.request.urlopen(f"{self.url}data?after={after}") as answer:
-                    doc = json.load(answer)
-            except OSError:
-                return  # the scope has closed
-            after = doc["last_seq"]
-            self.reads += 1
-            self.samples += len(doc["samples"]["seq"])
+        self._proc: subprocess.Popen[str] | None = subprocess.Popen(
+            [sys.executable, "-c", _READER, url, str(SCOPE_POLL_S)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join()
+        """End the reader (end of file on its stdin) and take its counts."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        out, _ = proc.communicate("")
+        if out.strip():
+            doc = json.loads(out.strip().splitlines()[-1])
+            self.reads, self.samples = int(doc["reads"]), int(doc["samples"])
 
 
 def binding_floor(r: dict[str, object]) -> str:

@@ -16,7 +16,10 @@ is served on its loopback).
 * pause freezes what is shown while the polls go on; the CSV export holds what is shown;
 * read-only: GET and HEAD answer, every other method gets 405 (asked from a second client in
   the namespace, urllib), and the run ends as it would without the scope (SIGINT: exit 0,
-  stopped at standstill).
+  stopped at standstill);
+* the page is served by a process of its own (bridge.scope_server, the bridge's child), and it
+  is gone once the run has ended (awaited on a pidfd; tests/bridge/test_scope_process.py
+  kills the bridge too).
 
 A screenshot of the page goes to docs/scope.png when ``SCOPE_SCREENSHOT`` names a path.
 """
@@ -36,6 +39,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.bridge.test_scope_process import ends, scope_server_pid
 from tests.chromium import PageCheck as Page
 from tests.chromium import chromium_problem, open_page, write_screenshot
 from tests.paths import ROOT
@@ -104,6 +108,8 @@ MOVING = (
     "c.e[i] !== null) v.push([c.t[i], c.e[i]]); return [scope.samples, scope.lastT, v]; })"
 )
 ERRORS = "[scope.dropped, scope.pushed]"
+#: The page's time window, s of control time (?window=): the whole run the test reads.
+WINDOW_S = 900.0
 FE = "document.querySelectorAll('.uplot').length"
 PAUSE = (
     "(() => { document.getElementById('pause').click(); const n = scope.samples; "
@@ -134,6 +140,7 @@ class Run:
     err: str
     code: int
     trace: Path
+    server_gone: bool
 
 
 def spoiled(run: Run) -> str | None:
@@ -169,6 +176,7 @@ def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
         env=env,
     )
     assert proc.stderr is not None
+    server: int | None = None  # a pidfd of the scope's server
     try:
         seen = []
         while True:  # the address, said before the drive is configured
@@ -182,7 +190,10 @@ def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
         page, problem, methods = None, "", None
         try:
             page = open_page(
-                url + "?window=60",
+                # lockstep runs control time faster than the wall's: by the time a starved
+                # page reads the constant feed (2-6 s), the run may be a minute past it, and
+                # the page keeps only its window (FIRST..MOVING once saw nothing in 2-6 s)
+                url + f"?window={WINDOW_S:g}",
                 [FIRST, MOVING, ERRORS, FE, PAUSE, RESUME, STATE],
                 width=1280,
                 height=760,
@@ -191,6 +202,8 @@ def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
         except Exception as exc:  # the waits failed: said with what the bridge said
             problem = repr(exc)
         else:
+            # the server has answered the page: past its exec, its command line is its own
+            server = os.pidfd_open(scope_server_pid(proc.pid))
             methods = subprocess.run(
                 ns.command([sys.executable, "-c", METHODS, url]),
                 capture_output=True,
@@ -202,8 +215,12 @@ def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)  # the run ends as any run does
         out, err = proc.communicate(timeout=BOUND_S)
+        gone = server is not None and ends(server)
+        if server is not None:
+            os.close(server)
     code = proc.returncode
-    return Run(url, page, problem, methods, out, "".join(seen) + err, code, tmp_path / "trace.csv")
+    trace = tmp_path / "trace.csv"
+    return Run(url, page, problem, methods, out, "".join(seen) + err, code, trace, gone)
 
 
 def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
@@ -259,3 +276,4 @@ def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
         assert code == (200 if method in ("GET", "HEAD") else 405), (key, code)
     assert run.code == 0, (out, err)
     assert "SIGINT" in out or "interrupted" in out, out
+    assert run.server_gone, "the scope's server outlived the bridge"
