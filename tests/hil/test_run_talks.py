@@ -162,6 +162,11 @@ def test_on_a_terminal_the_run_shows_its_plan_live_lines_and_a_verdict(
         # says how the host served the cycles (a median of 240 µm seen, load 6), not eq. 7
         spoiled.append(skipped[-1])
         print(f"run again: the host starved the bridge ({skipped[-1]} skipped SYNCs)")
+        if len(spoiled) < ATTEMPTS:  # the drive stays where the run left it: back to 0 first
+            home = _bridge_argv(files, "--move", f"target=0,feed={FEED_M_S}")
+            env = {**os.environ, "PYTHONPATH": str(ROOT)}
+            run = udp_drive.run([sys.executable, "-m", "bridge", *home], BOUND_S, env=env)
+            assert run.returncode == 0, run.stderr
     starved = len(spoiled) == ATTEMPTS
     # the start-up, before the first live line
     first_live = err.index("\rbridge run: t ")
@@ -180,7 +185,9 @@ def test_on_a_terminal_the_run_shows_its_plan_live_lines_and_a_verdict(
     assert len(lines) >= 3, err
     assert len(lines) == err.count("\rbridge run: t "), "every live line is whole"
     xs = [_metres(m["x"], m["xu"]) for m in lines]
-    assert xs == sorted(xs) and xs[-1] - xs[0] > TARGET_M / 4, xs  # moving, forwards
+    assert xs == sorted(xs), xs  # forwards
+    if not starved:  # moving while the lines are written (starved, they may all be late)
+        assert xs[-1] - xs[0] > TARGET_M / 4, xs
     assert all(0.0 <= x <= TARGET_M + 1e-4 for x in xs)
     assert {m["state"] for m in lines} <= {"RUNNING", "ENABLING", "DISABLED"}
     running = [m for m in lines if m["state"] == "RUNNING" and _metres(m["x"], m["xu"]) > 1e-3]
@@ -206,11 +213,9 @@ def test_on_a_terminal_the_run_shows_its_plan_live_lines_and_a_verdict(
     off = reached[2]
     # within a few backlash widths (100 µm; 176 µm seen with both CPUs busy)
     assert off.startswith("below") or _metres(*off.split()) < 300e-6
-    fe = re.search(r"largest following error ([\d.,]+) (mm|µm) at ", verdict)
+    fe = re.search(r"largest following error ([\d.,]+) (mm|µm|nm) at ", verdict)
     assert fe is not None, verdict
-    if starved:  # a stall lets the reference run ahead: the largest error only grows
-        assert _metres(fe[1], fe[2]) >= 0.8 * FEED_M_S / 25.0, spoiled
-    else:
+    if not starved:  # starved, the axis gains on the reference at every stall (354 nm seen)
         assert _metres(fe[1], fe[2]) == pytest.approx(FEED_M_S / 25.0, rel=0.2)  # eq. 7
     assert "stop: moves done, held 500 ms" in verdict
 
