@@ -157,20 +157,26 @@ def test_meta_message_and_the_end_reach_the_reader(ring: RingWriter, reader: Rea
     assert got["message"] == "none" and got["closed"] is True
 
 
+def push_until_the_reader_speaks(ring: RingWriter, reader: Reader) -> dict[str, object]:
+    """The writer as the loop is: it never waits for the reader and pushes until the reader
+    has something to say (a backstop: 10^8 samples); what it said."""
+    assert reader.proc.stdout is not None
+    with selectors.DefaultSelector() as sel:
+        sel.register(reader.proc.stdout, selectors.EVENT_READ)
+        while not sel.select(0):
+            push(ring, 1000)
+            assert ring.seq < 100_000_000, "the reader never spoke"
+    return json.loads(reader.proc.stdout.readline())
+
+
 def test_a_reader_racing_the_writer_never_takes_a_torn_sample(
     ring: RingWriter, reader: Reader
 ) -> None:
     assert reader.proc.stdin is not None and reader.proc.stdout is not None
     reader.proc.stdin.write("follow\n")
     reader.proc.stdin.flush()
-    # the writer never waits for the reader (the loop); it goes on until the reader says it
-    # has taken 1000 samples while racing it, then 10,000 more (a backstop: 10^8 samples)
-    with selectors.DefaultSelector() as sel:
-        sel.register(reader.proc.stdout, selectors.EVENT_READ)
-        while not sel.select(0):
-            push(ring, 1000)
-            assert ring.seq < 100_000_000, "the reader never took 1000 samples"
-    assert "progress" in json.loads(reader.proc.stdout.readline())
+    # the reader says when it has taken 1000 samples while racing the writer; 10,000 more
+    assert "progress" in push_until_the_reader_speaks(ring, reader)
     push(ring, 10_000)
     ring.mark_closed()
     got = json.loads(reader.proc.stdout.readline())
@@ -185,9 +191,5 @@ def test_the_write_sequence_never_goes_back_while_the_writer_publishes(
     reader.proc.stdin.write("watch 300000\n")
     reader.proc.stdin.flush()
     assert json.loads(reader.proc.stdout.readline()) == {"watching": True}
-    with selectors.DefaultSelector() as sel:  # the writer runs until the reader has read
-        sel.register(reader.proc.stdout, selectors.EVENT_READ)
-        while not sel.select(0):
-            push(ring, 1000)
-    got = json.loads(reader.proc.stdout.readline())
+    got = push_until_the_reader_speaks(ring, reader)
     assert got["backwards"] == 0 and 0 < got["last"] <= ring.seq, got
