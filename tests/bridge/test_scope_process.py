@@ -17,12 +17,14 @@ kernel's word that the process has exited), bounded only by a far backstop.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import signal
 import subprocess
 import sys
 import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -57,6 +59,20 @@ def ends(pidfd: int) -> bool:
     return bool(ready)
 
 
+@contextlib.contextmanager
+def sigint_as_from_a_terminal() -> Iterator[None]:
+    """Children started meanwhile get SIGINT at its default, as from a terminal. A program
+    started under a shell's ``&`` without job control (a CI script, nohup) inherits SIGINT
+    ignored and Python keeps it ignored: Ctrl-C would never reach the bridge's start-up (this
+    test then hung for its 300 s in every full run started so). A handler here is reset to
+    the default at the child's exec."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
 def start_bridge(
     tmp_path: Path, scope: bool = True, until: str = "bridge run: scope at "
 ) -> tuple[subprocess.Popen[str], str]:
@@ -68,14 +84,15 @@ def start_bridge(
         *("--axis", str(PAPER_AXIS), "--clock", "lockstep", "--seconds", "1"),
         *("--store", str(tmp_path / "store.json"), *(["--scope"] if scope else [])),
     ]
-    proc = subprocess.Popen(
-        argv,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        start_new_session=True,  # its own process group: the test's Ctrl-C reaches it alone
-    )
+    with sigint_as_from_a_terminal():
+        proc = subprocess.Popen(
+            argv,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            start_new_session=True,  # its own process group: the test's Ctrl-C reaches it alone
+        )
     assert proc.stderr is not None
     seen, url = [], ""
     while True:
