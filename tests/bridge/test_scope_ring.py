@@ -94,10 +94,14 @@ class Reader:
             env=env,
         )
 
-    def ask(self, what: str = "take") -> dict[str, object]:
-        assert self.proc.stdin is not None and self.proc.stdout is not None
+    def say(self, what: str) -> None:
+        assert self.proc.stdin is not None
         self.proc.stdin.write(what + "\n")
         self.proc.stdin.flush()
+
+    def ask(self, what: str = "take") -> dict[str, object]:
+        assert self.proc.stdout is not None
+        self.say(what)
         line = self.proc.stdout.readline()
         assert line, ("the reader ended", self.proc.wait())
         return json.loads(line)
@@ -172,9 +176,8 @@ def push_until_the_reader_speaks(ring: RingWriter, reader: Reader) -> dict[str, 
 def test_a_reader_racing_the_writer_never_takes_a_torn_sample(
     ring: RingWriter, reader: Reader
 ) -> None:
-    assert reader.proc.stdin is not None and reader.proc.stdout is not None
-    reader.proc.stdin.write("follow\n")
-    reader.proc.stdin.flush()
+    assert reader.proc.stdout is not None
+    reader.say("follow")
     # the reader says when it has taken 1000 samples while racing the writer; 10,000 more
     assert "progress" in push_until_the_reader_speaks(ring, reader)
     push(ring, 10_000)
@@ -187,9 +190,6 @@ def test_a_reader_racing_the_writer_never_takes_a_torn_sample(
 def test_the_write_sequence_never_goes_back_while_the_writer_publishes(
     ring: RingWriter, reader: Reader
 ) -> None:
-    assert reader.proc.stdin is not None and reader.proc.stdout is not None
-    reader.proc.stdin.write("watch 300000\n")
-    reader.proc.stdin.flush()
-    assert json.loads(reader.proc.stdout.readline()) == {"watching": True}
+    assert reader.ask("watch 300000") == {"watching": True}
     got = push_until_the_reader_speaks(ring, reader)
     assert got["backwards"] == 0 and 0 < got["last"] <= ring.seq, got
