@@ -104,8 +104,8 @@ MOVING = (
     "(() => { const n0 = scope.samples; return new Promise(r => (function w() { if ("
     f"scope.lastT > {TARGET_M / FEED_M_S + 2} && scope.samples > n0) r(); "
     "else setTimeout(w, 50); })()); })().then(() => { const c = scope.cols; const v = []; "
-    "for (let i = 0; i < c.t.length; i += 8) if (c.t[i] >= 2 && c.t[i] <= 6 && "
-    "c.e[i] !== null) v.push([c.t[i], c.e[i]]); return [scope.samples, scope.lastT, v]; })"
+    "for (let i = 0; i < c.t.length; i += 8) if (c.e[i] !== null) v.push([c.t[i], c.e[i]]); "
+    "return [scope.samples, scope.lastT, v]; })"
 )
 ERRORS = "[scope.dropped, scope.pushed]"
 #: The page's time window, s of control time (?window=): the whole run the test reads.
@@ -258,11 +258,19 @@ def test_the_scope_page_plots_the_running_loop_and_writes_nothing(
     same_t = np.abs(times[rows] - [t for t, _ in shown]) < 1e-9
     assert len(shown) >= 100 and same_t.all(), (len(shown), int((~same_t).sum()))
     assert np.allclose(errors_um[rows], [e for _, e in shown], rtol=0, atol=1e-3)  # 1 nm
-    # eq. 7 at constant feed: e = v / k_v (lockstep: the loop as the host cannot disturb it)
-    median = float(np.median([e for _, e in shown]))
-    assert median == pytest.approx(FEED_M_S / KV_PER_S * 1e6, rel=0.05)
     dropped, pushed = v[ERRORS]
     assert pushed >= n2 and 0 <= dropped < pushed
+    # eq. 7 at constant feed (2-6 s): e = v / k_v (lockstep: the host cannot disturb the
+    # loop). The page showed no sample of 2-6 s in 2 of some 20 runs (one a quiet fresh
+    # clone's): lockstep runs faster than the wall, and a server that drains the ring late
+    # loses the run's start (its 8,192 samples overwritten) -- lost and counted, as the page
+    # promises, never shown wrong; then the loss must be in the count
+    feed = [e for t, e in shown if 2.0 <= t <= TARGET_M / FEED_M_S]
+    if len(feed) >= 20:
+        median = float(np.median(feed))
+        assert median == pytest.approx(FEED_M_S / KV_PER_S * 1e6, rel=0.05)
+    else:
+        assert dropped > 0, (len(feed), shown[0][0], dropped, pushed)
     assert v[FE] == 4  # following error, β/λ, speeds, torque
     paused_at, after_polls = v[PAUSE]
     assert after_polls == paused_at  # paused: nothing new shown while the polls go on
