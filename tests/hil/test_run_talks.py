@@ -40,7 +40,7 @@ from plant_sim.paper.outputs import LIMIT_CYCLE_VISCOUS
 from plant_sim.paper.scenarios import SectionX
 from regulator import RegulatorConfig
 from tests.hil.test_two_processes import READER
-from tests.paths import ROOT
+from tests.paths import ROOT, checkout_env
 from tests.serving import drive_process_in
 from virtual_bus import BusConfig, Interface
 from virtual_bus.formats.axis import dump_axis, load_axis
@@ -127,7 +127,7 @@ def _on_a_terminal(udp_drive: NetworkNamespace, files: tuple[Path, Path]) -> tup
     """``bridge run`` with its stderr on a pty: (stdout, what the terminal got)."""
     master, slave = pty.openpty()
     got: list[bytes] = []
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = checkout_env()
     argv = [sys.executable, "-m", "bridge", *_bridge_argv(files)]
     try:
         proc = subprocess.Popen(
@@ -164,7 +164,7 @@ def test_on_a_terminal_the_run_shows_its_plan_live_lines_and_a_verdict(
         print(f"run again: the host starved the bridge ({skipped[-1]} skipped SYNCs)")
         if len(spoiled) < ATTEMPTS:  # the drive stays where the run left it: back to 0 first
             home = _bridge_argv(files, "--move", f"target=0,feed={FEED_M_S}")
-            env = {**os.environ, "PYTHONPATH": str(ROOT)}
+            env = checkout_env()
             run = udp_drive.run([sys.executable, "-m", "bridge", *home], BOUND_S, env=env)
             assert run.returncode == 0, run.stderr
     starved = len(spoiled) == ATTEMPTS
@@ -223,7 +223,7 @@ def test_on_a_terminal_the_run_shows_its_plan_live_lines_and_a_verdict(
 def test_json_on_a_pipe_no_live_line_and_the_drives_end_position(
     udp_drive: NetworkNamespace, files: tuple[Path, Path], tmp_path: Path
 ) -> None:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = checkout_env()
     back = (
         "--move",
         f"target={TARGET_M / 2},feed={FEED_M_S}",
