@@ -11,10 +11,15 @@ deflects
 
     θ/k_r − x = c₀ + F_s/k − (c/k)·(θ̇/k_r − ẋ) + (δ/2)·sign(F_s) + o·ẋ
 
+    − A·sin(2πx/P + φ)
+
 c₀ the unrelated zeros of the two systems, k = M·ω_a² the stiffness and c its damping (eq. 2:
 c/k = 2ξ/ω_a), δ the free play crossed at every reversal of the force (lost motion between the
-two systems), o a sensor time offset (the load read o later: x(t − o) ≈ x − o·ẋ). Linear in
-1/k, c/k, δ and o:
+two systems), o a sensor time offset (the load read o later: x(t − o) ≈ x − o·ẋ), and a
+periodic error of the load scale (it reads x + A·sin(2πx/P + φ): a reading error, so it lives
+here and not in the torque balance, which sees it only through ẍ). Linear in 1/k, c/k, δ, o,
+A·cos φ and A·sin φ at a period P, chosen like the torque's (:func:`.idim.choose_period` on
+this relation's residual over position, the choice paid for in the test's p):
 
 =====================  ==========================  =======================================
 effect                 regressor                   coefficient
@@ -22,6 +27,7 @@ effect                 regressor                   coefficient
 compliance             F_s, −(θ̇/k_r − ẋ)            1/k = 1/(M·ω_a²), c/k = 2ξ/ω_a
 backlash               sign(F_s)/2                 δ (mechanics.backlash)
 sensor_time_offset     ẋ                           o (control.sensor_time_offset)
+scale_error            −sin(2πx/P), −cos(2πx/P)    A·cos φ, A·sin φ (control.scale_error_*)
 =====================  ==========================  =======================================
 
 Rows: where |F_s| is clear of zero (the free play is being crossed there, and the contact
@@ -34,7 +40,8 @@ import numpy as np
 
 from virtual_bus.formats.axis import AxisConfig
 
-from .effects import DAMPING, FLEXIBILITY, Effect, model_values
+from .effects import DAMPING, FLEXIBILITY, SCALE_COS, SCALE_PERIOD, SCALE_SIN, Effect, model_values
+from .idim import PeriodChoice
 from .measured import Measured
 from .regression import Candidate, Relation
 
@@ -59,6 +66,13 @@ def force_threshold(force: np.ndarray) -> float:
     """|F_s| below which rows are not used, from the recording's force (the same rule for the
     recording and every replay): FORCE_FRACTION of its 99th percentile."""
     return FORCE_FRACTION * float(np.percentile(np.abs(force), 99.0))
+
+
+def scale_columns(m: Measured, period: float) -> dict[str, np.ndarray]:
+    """The scale error's regressors at ``period`` (load units): the deflection θ/k_r − x
+    carries −A·sin(2πx/P + φ) = −A·cos φ·sin(2πx/P) − A·sin φ·cos(2πx/P)."""
+    ph = 2.0 * np.pi * m.load_position / period
+    return {SCALE_COS: -np.sin(ph), SCALE_SIN: -np.cos(ph)}
 
 
 def deflection_relation(
@@ -89,14 +103,20 @@ def deflection_relation(
         cols["mechanics.backlash"] = 0.5 * np.sign(force)
     if axis.control.sensor_time_offset is not None:
         cols["control.sensor_time_offset"] = m.speed
+    if axis.control.scale_error_amplitude is not None and axis.control.scale_error_period:
+        cols.update(scale_columns(m, axis.control.scale_error_period))
     values = {k: v for k, v in values.items() if k in cols}
     return Relation(NAME, y, cols, rows & (np.abs(force) > threshold), values)
 
 
 def deflection_candidates(
-    m: Measured, force: np.ndarray, effects: frozenset[Effect]
+    m: Measured,
+    force: np.ndarray,
+    effects: frozenset[Effect],
+    period: PeriodChoice | None = None,
 ) -> list[Candidate]:
-    """Regressors of compliance, backlash and sensor time offset (those in ``effects``)."""
+    """Regressors of compliance, backlash, sensor time offset and the scale error at
+    ``period`` (those in ``effects``)."""
     if not m.two_systems or m.deflection_rate is None:
         return []
     out = []
@@ -109,4 +129,15 @@ def deflection_candidates(
     if Effect.SENSOR_TIME_OFFSET in effects:
         cols = {"control.sensor_time_offset": m.speed}
         out.append(Candidate(Effect.SENSOR_TIME_OFFSET, NAME, [cols], [None]))
+    if Effect.SCALE_ERROR in effects and period is not None:
+        out.append(
+            Candidate(
+                Effect.SCALE_ERROR,
+                NAME,
+                [scale_columns(m, period.period)],
+                [period.period],
+                SCALE_PERIOD,
+                look_elsewhere=period.looked_at,
+            )
+        )
     return out

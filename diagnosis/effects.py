@@ -19,11 +19,12 @@ from collections.abc import Mapping
 from enum import Enum
 from typing import ClassVar
 
+from cmdline.quantity import quantity
 from virtual_bus.formats.axis import AxisConfig
 
 from .evidence import DataScales
 from .fit import PERIODIC_COS, PERIODIC_SIN
-from .parameters import format_value, max_antiresonance, with_contact
+from .parameters import format_value, key_unit, max_antiresonance, with_contact
 
 #: Axis values an estimate adds to a model ({} and the reason when it is not physical).
 Values = tuple[dict[str, float | None], str]
@@ -40,6 +41,11 @@ FLEXIBILITY = "mechanics.flexibility"
 DAMPING = "mechanics.damping/stiffness"
 #: The set point's dead-time growth (s/s), freed in the closed-loop fit once it is named.
 RATE_KEY = "control.setpoint_delay_rate"
+#: the load scale's periodic error A·sin(2πx/P + φ) as the deflection's two coefficients:
+#: A·cos φ (of −sin 2πx/P) and A·sin φ (of −cos 2πx/P), :func:`.deflection.scale_columns`
+SCALE_COS = "control.scale_error_amplitude*cos(phase)"
+SCALE_SIN = "control.scale_error_amplitude*sin(phase)"
+SCALE_PERIOD = "control.scale_error_period"
 
 
 def model_values(axis: AxisConfig) -> dict[str, float]:
@@ -53,7 +59,21 @@ def model_values(axis: AxisConfig) -> dict[str, float]:
     if m.antiresonance:
         out[FLEXIBILITY] = 1.0 / (m.load_mass * m.antiresonance**2)
         out[DAMPING] = 2.0 * (m.damping_ratio or 0.0) / m.antiresonance
+    c = axis.control
+    if c.scale_error_amplitude is not None:
+        phase = c.scale_error_phase or 0.0
+        out[SCALE_COS] = c.scale_error_amplitude * math.cos(phase)
+        out[SCALE_SIN] = c.scale_error_amplitude * math.sin(phase)
     return out
+
+
+def scale_error_values(a_cos: float, a_sin: float) -> dict[str, float]:
+    """Amplitude and phase of the scale's periodic error from its two coefficients (the phase
+    in (−π, π])."""
+    return {
+        "control.scale_error_amplitude": math.hypot(a_cos, a_sin),
+        "control.scale_error_phase": math.atan2(a_sin, a_cos),
+    }
 
 
 class Effect(Enum):
@@ -374,8 +394,23 @@ class SetpointDelay(EffectModel):
         return max(abs(d0), abs(d0 + rate * duration)) > 0.05 * scales.sample_time_s
 
     def values(self, est: Mapping[str, float], model: AxisConfig) -> Values:
-        # constant at the scan's estimate; the closed-loop fit frees its growth rate
-        return {"control.setpoint_delay": est["control.setpoint_delay"], RATE_KEY: 0.0}, ""
+        # the scan's variant (constant, or growing from none); the closed-loop fit frees both
+        return {
+            "control.setpoint_delay": est["control.setpoint_delay"],
+            RATE_KEY: est.get(RATE_KEY, 0.0),
+        }, ""
+
+    def headline(self, fitted: AxisConfig, nominal: AxisConfig) -> str | None:
+        """'the drive applies the speed set point 2.1 ms late', or with its growth."""
+        d0 = fitted.control.setpoint_delay
+        if d0 is None:
+            return None
+        rate = fitted.control.setpoint_delay_rate or 0.0
+        text = f"the drive applies the speed set point {quantity(d0, 's')} late"
+        if rate:
+            grows = "growing" if rate > 0 else "shrinking"
+            text += f" at the start, {grows} by {quantity(abs(rate), 's')} per second of the run"
+        return text + " (bus, the drive's input stage)"
 
 
 class MeasurementDelay(EffectModel):
@@ -405,11 +440,33 @@ class ScaleError(EffectModel):
         "control.scale_error_period",
         "control.scale_error_phase",
     )
-    untested = "no test of periodic terms in the deflection between the two measuring systems yet"
     description = (
         "a periodic error of the load measuring system (a reading error, not a force: it "
         "shows in the deflection between the two measuring systems, not in the torque)"
     )
+
+    def significant(self, fitted: AxisConfig, scales: DataScales) -> bool:
+        return (fitted.control.scale_error_amplitude or 0.0) > 1e-3 * scales.following_error
+
+    def values(self, est: Mapping[str, float], model: AxisConfig) -> Values:
+        period = est.get(SCALE_PERIOD, 0.0)
+        vals = scale_error_values(est.get(SCALE_COS, 0.0), est.get(SCALE_SIN, 0.0))
+        amp = vals["control.scale_error_amplitude"]
+        if not (0.0 < amp <= 0.01 and period > 0.0):
+            return {}, f"amplitude {amp:.3g} outside (0, 0.01] or period {period:.3g} <= 0"
+        return {**vals, SCALE_PERIOD: period}, ""
+
+    def headline(self, fitted: AxisConfig, nominal: AxisConfig) -> str | None:
+        """'the load scale reads up to 5.77 µm wrong, periodically every 30.7 mm of travel'."""
+        c = fitted.control
+        if not (c.scale_error_amplitude and c.scale_error_period):
+            return None
+        unit = key_unit("control.scale_error_amplitude", fitted)
+        return (
+            f"the load scale reads up to {quantity(c.scale_error_amplitude, unit)} wrong, "
+            f"periodically every {quantity(c.scale_error_period, unit)} of travel (a reading "
+            "error: where the loop holds the scale, the load stands off by as much)"
+        )
 
 
 #: Every effect of the table, in the table's order.

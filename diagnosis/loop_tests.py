@@ -32,7 +32,7 @@ from plant_sim.physics.model import KernelOptions, default_substeps
 from virtual_bus.formats.axis import AxisConfig
 from virtual_bus.formats.errors import AxisFileError
 
-from .effects import Effect
+from .effects import RATE_KEY, Effect
 from .parameters import UNCERTAIN_KEYS
 from .randomization import Whitener, face_value_test, fit_whitener, time_blocks
 from .regression import EffectTest
@@ -63,10 +63,17 @@ UNSTABLE = 1e8
 
 @dataclass(frozen=True)
 class LoopCandidate:
+    """One loop effect's scan: the variants of the model, the scanned value of each (``key``)
+    and, where a variant sets more than ``key``, the axis values it sets (the estimate)."""
+
     effect: Effect
     key: str
     values: tuple[float, ...]
     variants: tuple[AxisConfig, ...]
+    settings: tuple[dict[str, float], ...] = ()
+
+    def estimate(self, i: int) -> dict[str, float]:
+        return dict(self.settings[i]) if self.settings else {self.key: float(self.values[i])}
 
 
 def _signals(inp: ReplayInput) -> tuple[str, ...]:
@@ -99,17 +106,19 @@ def loop_candidates(
                     tuple(model.with_values({"control.delay": v}) for v in vals),
                 )
             )
-    for effect, key in (
-        (Effect.SETPOINT_DELAY, "control.setpoint_delay"),
-        (Effect.MEASUREMENT_DELAY, "control.measurement_delay"),
-    ):
-        if effect not in effects:
-            continue
-        top = 0.1 if effect is Effect.SETPOINT_DELAY else 0.05
-        vals = tuple(n * c.speed_cycle for n in LATE_CYCLES if n * c.speed_cycle <= top)
+    if Effect.SETPOINT_DELAY in effects:
+        out += _setpoint_delay(model, inp.duration_s)
+    if Effect.MEASUREMENT_DELAY in effects:
+        key = "control.measurement_delay"
+        vals = tuple(n * c.speed_cycle for n in LATE_CYCLES if n * c.speed_cycle <= 0.05)
         if vals:
             out.append(
-                LoopCandidate(effect, key, vals, tuple(model.with_values({key: v}) for v in vals))
+                LoopCandidate(
+                    Effect.MEASUREMENT_DELAY,
+                    key,
+                    vals,
+                    tuple(model.with_values({key: v}) for v in vals),
+                )
             )
     if Effect.TORQUE_SATURATION in effects:
         tau = np.abs(inp.recorded["motor_torque"])
@@ -146,6 +155,41 @@ def loop_candidates(
                     )
                 )
     return out
+
+
+def _setpoint_delay(model: AxisConfig, duration_s: float) -> list[LoopCandidate]:
+    """The set point applied late: constant dead times of :data:`LATE_CYCLES` speed cycles,
+    and dead times growing from none to as much at the recording's end (a bus whose jitter
+    grows, a drive's input stage filling up: a constant one misses such a delay, which is
+    short in the first half of the run and long in the second)."""
+    cyc = model.control.speed_cycle
+    ends = [n * cyc for n in LATE_CYCLES if n * cyc <= 0.1]
+    settings = [{"control.setpoint_delay": d, RATE_KEY: 0.0} for d in ends]
+    if duration_s > 0.0:
+        settings += [
+            {"control.setpoint_delay": 0.0, RATE_KEY: d / duration_s}
+            for d in ends
+            if d / duration_s <= 0.01
+        ]
+    variants, kept = [], []
+    for v in settings:
+        try:
+            variants.append(model.with_values(v))
+        except AxisFileError:
+            continue
+        kept.append(v)
+    if not variants:
+        return []
+    values = tuple(v["control.setpoint_delay"] + v[RATE_KEY] * duration_s for v in kept)
+    return [
+        LoopCandidate(
+            Effect.SETPOINT_DELAY,
+            "control.setpoint_delay",
+            values,
+            tuple(variants),
+            tuple(kept),
+        )
+    ]
 
 
 def refined(model: AxisConfig, options: KernelOptions) -> KernelOptions:
@@ -247,14 +291,11 @@ def loop_tests(
     for cand in candidates:
         zs = results[i : i + len(cand.variants)]
         i += len(cand.variants)
-        usable = [
-            (v, z) for v, z in zip(cand.values, zs, strict=True) if z is not None and np.any(z)
-        ]
+        usable = [(j, z) for j, z in enumerate(zs) if z is not None and np.any(z)]
         if not usable:
             continue
         result = face_value_test(y, base, [z for _, z in usable], blocks, rng)
-        value = usable[result.best][0]
         gain = float(result.coefficients[0]) if len(result.coefficients) else 0.0
-        est = {cand.key: float(value), GAIN_KEY: gain}
+        est = {**cand.estimate(usable[result.best][0]), GAIN_KEY: gain}
         out[cand.effect] = EffectTest(cand.effect, NAME, result, est, {})
     return out, len(jobs) + 1

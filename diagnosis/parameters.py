@@ -79,6 +79,9 @@ def key_unit(key: str, axis: AxisConfig) -> str:
         "control.setpoint_delay": "s",
         "control.setpoint_delay_rate": "s/s",
         "control.measurement_delay": "s",
+        "control.scale_error_amplitude": u["position"],
+        "control.scale_error_period": u["position"],
+        "control.scale_error_phase": "rad",
     }
     if key in table:
         return table[key]

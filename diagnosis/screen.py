@@ -48,7 +48,15 @@ from . import idim
 from . import standstill as rest
 from .clipping import clipping_test
 from .clipping import effect_test as clipping_effect_test
-from .effects import MODELS, Effect, effects_in
+from .effects import (
+    MODELS,
+    SCALE_COS,
+    SCALE_PERIOD,
+    SCALE_SIN,
+    Effect,
+    effects_in,
+    scale_error_values,
+)
 from .errors import DiagnosisInputError
 from .evidence import DataScales, data_scales
 from .fit import PERIODIC_COS, PERIODIC_SIN
@@ -166,6 +174,8 @@ def base_values(
         c, s = corrected[PERIODIC_COS], corrected[PERIODIC_SIN]
         out["disturbance.periodic_amplitude"] = math.hypot(c, s)
         out["disturbance.periodic_phase"] = math.atan2(s, c)
+    if SCALE_COS in corrected and SCALE_SIN in corrected:
+        out.update(scale_error_values(corrected[SCALE_COS], corrected[SCALE_SIN]))
     mass = out.get("mechanics.load_mass", model.mechanics.load_mass)
     wa0 = model.mechanics.antiresonance
     if wa0 and dfl.FLEXIBILITY in corrected and corrected[dfl.FLEXIBILITY] > 0.0:
@@ -280,29 +290,53 @@ def _calibrate(
     return _Round(rels, fitted, sim, m_sims, noise, force, sim_forces)
 
 
+@dataclass(frozen=True)
+class _Periods:
+    """The periods a position-periodic term is tested at: the torque's (a periodic force)
+    and the deflection's (a periodic error of the load scale), each from its own relation's
+    residual (:func:`_periods`)."""
+
+    torque: idim.PeriodChoice | None = None
+    scale: idim.PeriodChoice | None = None
+
+
 def _plant_candidates(
     m: Measured,
     force: np.ndarray | None,
     model: AxisConfig,
     scans: idim.Scans,
     effects: frozenset[Effect],
-    period: idim.PeriodChoice | None = None,
+    periods: _Periods = _Periods(),
 ) -> list[Candidate]:
-    out = idim.torque_candidates(m, model, scans, effects, period)
+    out = idim.torque_candidates(m, model, scans, effects, periods.torque)
     if force is not None:
-        out += dfl.deflection_candidates(m, force, effects)
+        out += dfl.deflection_candidates(m, force, effects, periods.scale)
     return out
 
 
-def _period(rnd: _Round, m_rec: Measured, scans: idim.Scans) -> idim.PeriodChoice | None:
-    """The period of the torque balance residual's largest peak over position (recording)."""
-    if scans.period_band is None:
+def _residual_period(
+    rnd: _Round, name: str, m_rec: Measured, scans: idim.Scans
+) -> idim.PeriodChoice | None:
+    """The period of relation ``name``'s residual's largest peak over position (recording)."""
+    if scans.period_band is None or name not in rnd.relations:
         return None
-    rec = rnd.relations[idim.NAME][0]
-    f = rnd.fitted[idim.NAME]
+    rec = rnd.relations[name][0]
+    f = rnd.fitted[name]
     keys = list(f.keys)
     fitted = rec.matrix(keys) @ np.array([f.recording[k] for k in keys]) if keys else 0.0
     return idim.choose_period(m_rec, rec.y - fitted, rec.mask, scans.period_band)
+
+
+def _periods(
+    rnd: _Round, m_rec: Measured, scans: idim.Scans, effects: frozenset[Effect]
+) -> _Periods:
+    """The periods of the periodic effects in ``effects`` (the others are not looked for)."""
+    return _Periods(
+        _residual_period(rnd, idim.NAME, m_rec, scans)
+        if Effect.PERIODIC_DISTURBANCE in effects
+        else None,
+        _residual_period(rnd, dfl.NAME, m_rec, scans) if Effect.SCALE_ERROR in effects else None,
+    )
 
 
 def _plant_tests(
@@ -313,11 +347,11 @@ def _plant_tests(
     effects: frozenset[Effect],
     rng: np.random.Generator,
 ) -> dict[Effect, EffectTest]:
-    period = _period(rnd, m_rec, scans) if Effect.PERIODIC_DISTURBANCE in effects else None
-    cands = _plant_candidates(m_rec, rnd.force, model, scans, effects, period)
+    periods = _periods(rnd, m_rec, scans, effects)
+    cands = _plant_candidates(m_rec, rnd.force, model, scans, effects, periods)
     forces: list[np.ndarray | None] = list(rnd.sim_forces) or [None] * len(rnd.m_sims)
     sim_cands = [
-        {c.effect: c for c in _plant_candidates(ms, f, model, scans, effects, period)}
+        {c.effect: c for c in _plant_candidates(ms, f, model, scans, effects, periods)}
         for ms, f in zip(rnd.m_sims, forces, strict=True)
     ]
     out: dict[Effect, EffectTest] = {}
@@ -343,11 +377,11 @@ def _conditional_p(
     of their common relation (on the recording; the calibration's offsets are small next to
     an effect that is significant, and this asks only whether one explains the other)."""
     rec = rnd.relations[given.relation][0]
-    period = _period(rnd, m_rec, scans)
+    pair = frozenset({given.effect, tested})
     cands = {
         c.effect: c
         for c in _plant_candidates(
-            m_rec, rnd.force, model, scans, frozenset({given.effect, tested}), period
+            m_rec, rnd.force, model, scans, pair, _periods(rnd, m_rec, scans, pair)
         )
         if c.relation == given.relation
     }
@@ -561,22 +595,26 @@ def _refine(
         grid, key = scans.stribeck_speeds, "friction.stribeck_speed"
         i = best.test.best
         lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    elif best.effect is Effect.PERIODIC_DISTURBANCE:
-        key = "disturbance.periodic_period"
+    elif best.effect in (Effect.PERIODIC_DISTURBANCE, Effect.SCALE_ERROR):
+        key = SCALE_PERIOD if best.effect is Effect.SCALE_ERROR else "disturbance.periodic_period"
         p0, span = best.estimate[key], float(np.ptp(m_rec.load_position))
         # within a quarter of a period's drift over the travel either way
         lo, hi = p0 / (1.0 + p0 / span), p0 * (1.0 + p0 / span)
     else:
         return best
-    rec = rnd.relations[idim.NAME][0]
-    f = rnd.fitted[idim.NAME]
+    rec = rnd.relations[best.relation][0]
+    f = rnd.fitted[best.relation]
     w, valid = f.whitener, f.valid
     keys = list(f.keys)
     xw = w.apply(rec.matrix(keys))[valid]
     yw = w.apply(rec.y)[valid]
     found = (math.inf, best.estimate)
     for value in np.geomspace(lo, hi, REFINE_POINTS):
-        cols = idim.scan_columns(best.effect, m_rec, float(value))
+        cols = (
+            dfl.scale_columns(m_rec, float(value))
+            if best.effect is Effect.SCALE_ERROR
+            else idim.scan_columns(best.effect, m_rec, float(value))
+        )
         z = w.apply(np.column_stack(list(cols.values())))[valid]
         design = np.column_stack([xw, z])
         coef, *_ = np.linalg.lstsq(design, yw, rcond=None)

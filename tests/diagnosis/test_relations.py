@@ -12,7 +12,7 @@ import pytest
 
 from diagnosis import deflection as dfl
 from diagnosis import idim
-from diagnosis.effects import Effect
+from diagnosis.effects import MODELS, SCALE_PERIOD, Effect
 from diagnosis.fit import PERIODIC_COS, PERIODIC_SIN
 from diagnosis.measured import measured
 from diagnosis.regression import evaluate_candidates, fit_relation
@@ -244,3 +244,49 @@ def test_deflection_law_is_recovered() -> None:
     assert got[dfl.FLEXIBILITY] == pytest.approx(1.0 / k, rel=0.05)
     assert got["mechanics.backlash"] == pytest.approx(delta, rel=0.05)
     assert got["control.sensor_time_offset"] == pytest.approx(offset, rel=0.05)
+
+
+def test_a_periodic_scale_error_is_found_in_the_deflection_not_in_the_torque() -> None:
+    """A load scale that reads x + A·sin(2πx/P + φ) over a stiff transmission: the period
+    from the deflection's residual over position, A and φ recovered from the deflection's
+    two coefficients (the torque law, a clean one, has nothing to show)."""
+    axis = slide_axis()
+    kr = axis.transmission_ratio
+    t, x, v, a = _kinematics(kr)
+    amp, period, phase = 5e-6, 0.0125, 2.1
+    force = 25.0 * a + 50.0 * np.sign(v)
+    rng = np.random.default_rng(3)
+    trace = Trace(
+        {
+            "time": t,
+            "position_reference": x,
+            "motor_position": kr * x,
+            "load_position": x
+            + amp * np.sin(2 * np.pi * x / period + phase)
+            + 2e-8 * rng.standard_normal(len(t)),
+            "motor_torque": np.zeros_like(t),
+        }
+    )
+    m = measured(trace, axis)
+    rows = np.abs(m.speed) > 0.005
+    rel = dfl.deflection_relation(m, axis, force, dfl.force_threshold(force), rows)
+    assert rel is not None
+    band = idim.scans_for(m).period_band
+    assert band is not None
+    fitted = fit_relation(rel, [])
+    base = rel.matrix(list(fitted.keys)) @ np.array([fitted.recording[k] for k in fitted.keys])
+    choice = idim.choose_period(m, rel.y - base, rel.mask, band)
+    assert choice is not None
+    assert choice.period == pytest.approx(period, rel=0.03)
+    cands = dfl.deflection_candidates(m, force, frozenset({Effect.SCALE_ERROR}), choice)
+    assert [c.effect for c in cands] == [Effect.SCALE_ERROR]
+    cols = {**rel.columns, **dfl.scale_columns(m, period)}
+    keys = list(cols)
+    coef, *_ = np.linalg.lstsq(
+        np.column_stack([cols[k] for k in keys])[rel.mask], rel.y[rel.mask], rcond=None
+    )
+    got = dict(zip(keys, coef, strict=True))
+    vals = MODELS[Effect.SCALE_ERROR].values({**got, SCALE_PERIOD: period}, axis)[0]
+    assert vals["control.scale_error_amplitude"] == pytest.approx(amp, rel=0.02)
+    assert vals["control.scale_error_phase"] == pytest.approx(phase, abs=0.02)
+    assert vals[SCALE_PERIOD] == period
