@@ -19,7 +19,10 @@ regulator off) is played with each rung in turn until one limit-cycles:
    gap;
 6. a **load pulse** where the runner can apply one (offline: the plant's disturbance input;
    a drive: a torque offset its PDOs carry): section X's push in the direction of motion at the
-   slow feed, then at the feed, :data:`PULSE_SHARE` of the torque limit for T_v and released.
+   slow feed, at half of it, at the creep feed, then at the feed, :data:`PULSE_SHARE` of the
+   torque limit for T_v and released. A push provokes a cycle only within a band of feeds
+   (FMU axis 2031, seen seeds: at 6-12 mm/s, not at 4 or 15 mm/s, whatever the push's
+   length from T_v to 2 s), so the pulse is tried at feeds a factor 2 apart.
 
 A rung whose path leaves the travel limits, or that the torque limit leaves no room for, is
 skipped with the reason; the refusal names every rung and what it measured.
@@ -43,6 +46,8 @@ TORQUE_SHARE = 0.5
 PULSE_SHARE = 20.0 / 120.0
 #: The creep feed as a share of the slow feed.
 CREEP_SHARE = 0.25
+#: The load pulse's middle feed as a share of the slow feed (between it and the creep feed).
+HALF_SHARE = 0.5
 #: The largest factor by which a sharp deceleration exceeds the default acceleration.
 MAX_SHARPEN = 100.0
 #: The load pulse at the feed: the slow feed this share of the feed (no deceleration to speak
@@ -168,6 +173,8 @@ class Ladder:
         pulse, why = self._pulse()
         for name, feed in (
             ("load pulse", b.low_feed),
+            ("load pulse at half the slow feed", HALF_SHARE * b.low_feed),
+            ("load pulse at a creep feed", creep),
             ("load pulse at the feed", FEED_PULSE * b.feed),
         ):
             if pulse is None:
