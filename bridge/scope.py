@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import select
 import socket
 import subprocess
 import sys
@@ -69,6 +70,9 @@ RING_SAMPLES = 8192
 #: How long :meth:`Scope.close` lets the server take to exit after end of file before it is
 #: killed, s (it exits at once; this only bounds the bridge's exit on a wedged host).
 CLOSE_WAIT_S = 2.0
+#: How long :meth:`Scope.start` waits for the server's first drain of the ring before the run
+#: goes on without it, s (it takes 0.1-0.3 s; this only bounds a start on a wedged host).
+READY_WAIT_S = 20.0
 #: The uPlot release vendored in bridge/scope_page (npm pack uplot@1.6.32).
 UPLOT_VERSION = "1.6.32"
 
@@ -134,7 +138,8 @@ class Scope:
         self.start()
 
     def start(self) -> None:
-        """Start the server process (once), say the address."""
+        """Start the server process (once), wait (at most :data:`READY_WAIT_S`) until it has
+        drained the ring once, say the address."""
         if self._proc is not None or self._sock is None:
             return
         ring_fd, listen_fd = self.ring.fd, self._sock.fileno()
@@ -146,14 +151,35 @@ class Scope:
         self._proc = subprocess.Popen(
             argv,
             stdin=subprocess.PIPE,  # the lifeline: end of file when the bridge ends
-            stdout=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,  # one line: "ready" after its first drain
             pass_fds=(ring_fd, listen_fd),
             env=env,
         )
         self._sock.close()  # the server's now
         self._sock = None
-        self.stream.write(f"{self.command}: scope at {self.url} (read-only)\n")
+        late = self._wait_ready(self._proc)
+        self.stream.write(f"{self.command}: scope at {self.url} (read-only){late}\n")
         self.stream.flush()
+
+    @staticmethod
+    def _wait_ready(proc: subprocess.Popen[bytes]) -> str:
+        """Wait for the server's "ready" line (bounded), close the pipe; '' when it came,
+        else what the page may miss."""
+        assert proc.stdout is not None
+        out = proc.stdout
+        try:
+            ready, _, _ = select.select([out], [], [], READY_WAIT_S)
+            line = os.read(out.fileno(), 64) if ready else None
+        finally:
+            out.close()
+        if line is None:
+            return (
+                f"; its server was not ready after {READY_WAIT_S:g} s, "
+                "the page may miss the run's start"
+            )
+        if not line.startswith(b"ready"):
+            return "; its server ended at its start (the page is not served)"
+        return ""
 
     def follow(self, bridge: Bridge, options: RunOptions | None = None) -> None:
         """Chain :meth:`cycle` after the bridge's hook already there (the status line's); a

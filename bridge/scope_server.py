@@ -16,6 +16,7 @@ reach the bus: this process holds the ring and a socket, nothing else of the bri
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -161,9 +162,23 @@ def handler(history: History) -> type[BaseHTTPRequestHandler]:
 
 
 def _drain(history: History) -> None:
+    history.drain()
+    _say_ready()
     while True:
-        history.drain()
         time.sleep(DRAIN_S)
+        history.drain()
+
+
+def _say_ready() -> None:
+    """One line on standard output once the ring is drained for the first time, then
+    standard output is closed (the bridge reads that line, and nothing after it, so nothing
+    can fill the pipe): the bridge starts its loop only then (:meth:`bridge.scope.Scope.start`),
+    so a loop faster than the wall (lockstep) cannot overrun the ring before the first drain."""
+    with contextlib.suppress(OSError):
+        os.write(1, b"ready\n")
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)
+    os.close(null)
 
 
 def _watch_parent() -> None:

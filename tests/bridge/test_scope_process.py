@@ -164,3 +164,24 @@ def test_the_scope_leaves_no_thread_in_the_bridge(tmp_path: Path) -> None:
             proc.kill()
             proc.communicate()
     assert counts[True] == counts[False], counts
+
+
+def test_start_returns_once_the_server_has_drained_the_ring() -> None:
+    """The loop starts only after the server's first drain (a lockstep loop runs faster than
+    the wall and overran the ring before a server still importing had read anything: a page
+    without the run's start). Three rings' worth pushed before ``start``: when it returns,
+    the server has taken the ring once and written back what it could not keep."""
+    import io
+
+    from bridge.scope import RING_SAMPLES, Scope
+
+    said = io.StringIO()
+    scope = Scope(0, stream=said)
+    try:
+        for i in range(3 * RING_SAMPLES):
+            scope.ring.push(i * 1e-3, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0, 0)
+        scope.start()
+        assert scope.ring.dropped >= 2 * RING_SAMPLES, scope.ring.dropped
+        assert said.getvalue() == f"bridge run: scope at {scope.url} (read-only)\n"
+    finally:
+        scope.close()
