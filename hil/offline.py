@@ -74,7 +74,7 @@ def frequency_response(
     return FrequencyResponse(
         loop,
         adm,
-        antiresonance(loop, band[0], band[1], adm),
+        antiresonance(loop, band[0], band[1], adm, plan.sheet_damping),
         bandwidth(loop),
         trace,
         torque_unit,

@@ -12,7 +12,10 @@ Fig. 2" (section IX). This module is the measurement's arithmetic, pure numpy/sc
   the periods, their ratio; the standard deviation of that ratio from the spread of the periods
   (the "robust" method of Pintelon & Schoukens, *System Identification*, ch. 2 and 7, with
   the covariance of input and output, so that the set point may be inside a closed loop);
-* :func:`antiresonance` -- omega_a as the notch of the speed loop ``omega_m / omega_r``: the
+* :func:`antiresonance` -- omega_a where the torque is measured as the two-mass model of eq. 2
+  fitted to the motor admittance (:mod:`regulator.admittance_fit`: its verdict from an F test
+  against the rigid body and the realizations' spread); without torque, as the notch of the
+  speed loop ``omega_m / omega_r``: the
   zeros P of eq. 2 are zeros of eq. 6a, so the loop's magnitude dips at omega_a (Fig. 2). The
   notch is the deepest local minimum relative to the median of its neighbourhood, located
   between lines by a parabola through log-magnitudes; its uncertainty (about 95 %) combines
@@ -36,6 +39,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import t as student_t
 
+from .admittance_fit import TwoMassFit, fit_two_mass
 from .errors import AnalysisError, require_positive
 
 #: Coverage factor of the stated uncertainty (about 95 % for a normal estimate).
@@ -249,31 +253,40 @@ MAX_NOTCH_REL_UNCERTAINTY = 0.1
 
 @dataclass(frozen=True)
 class Antiresonance:
-    """omega_a from the notch of a measured speed loop, rad/s, with its uncertainty.
+    """omega_a of a measured speed loop, rad/s, with its uncertainty.
 
-    loop_notch_rad_s: the notch of omega_m / omega_r (the estimate); admittance_notch_rad_s:
-    that of the motor admittance (nan without torque); uncertainty_rad_s: half-width of the
-    interval (about 95 %); depth_db: how far the notch lies below its neighbourhood;
-    resolved: deeper than MIN_NOTCH_DB and not at the edge of the band.
+    estimate_rad_s: the estimate -- the two-mass fit of the motor admittance where the torque
+    was measured (``fit``, :mod:`regulator.admittance_fit`), else the notch of the loop;
+    loop_notch_rad_s: the notch of omega_m / omega_r; admittance_notch_rad_s: that of the
+    motor admittance (nan without torque); uncertainty_rad_s: half-width of the estimate's
+    interval (about 95 %); depth_db: how far the notch lies below its neighbourhood (the
+    fit's: below the rigid body's level); resolved and, where not, ``reason``.
     """
 
+    estimate_rad_s: float
     loop_notch_rad_s: float
     admittance_notch_rad_s: float
     uncertainty_rad_s: float
     jackknife_std_rad_s: float
     depth_db: float
     resolved: bool
+    reason: str = ""
+    fit: TwoMassFit | None = None
 
     @property
     def rad_s(self) -> float:
-        return self.loop_notch_rad_s
+        return self.estimate_rad_s
 
     @property
     def hz(self) -> float:
-        return self.loop_notch_rad_s / (2.0 * math.pi)
+        return self.estimate_rad_s / (2.0 * math.pi)
+
+    @property
+    def method(self) -> str:
+        return "two-mass fit of the motor admittance" if self.fit is not None else "loop notch"
 
     def contains(self, truth_rad_s: float) -> bool:
-        return abs(truth_rad_s - self.loop_notch_rad_s) <= self.uncertainty_rad_s
+        return abs(truth_rad_s - self.estimate_rad_s) <= self.uncertainty_rad_s
 
 
 def _notch(
@@ -304,10 +317,16 @@ def _notch(
 
 
 def antiresonance(
-    loop: Frf, low_hz: float, high_hz: float, admittance: Frf | None = None
+    loop: Frf,
+    low_hz: float,
+    high_hz: float,
+    admittance: Frf | None = None,
+    sheet_damping: float | None = None,
 ) -> Antiresonance:
-    """omega_a from the notch of ``loop`` (omega_m / omega_r) in [low_hz, high_hz]; the
-    notch of ``admittance`` (omega_m / tau_m) bounds the sampling error where given."""
+    """omega_a in [low_hz, high_hz]: the two-mass fit of ``admittance`` (omega_m / tau_m)
+    where given (``sheet_damping``: the axis file's damping ratio, which bounds the fit's,
+    :func:`regulator.admittance_fit.fit_two_mass`), else the notch of ``loop``
+    (omega_m / omega_r)."""
     band = loop.band(low_hz, high_hz)
     if band.frequency_hz.size < 8:
         raise AnalysisError(
@@ -329,17 +348,44 @@ def antiresonance(
     coverage = float(student_t.ppf(0.975, n - 1))  # about 95 % for n - 1 degrees of freedom
     half_width_hz = math.hypot(coverage * jack, 0.5 * resolution_hz) + systematic_hz
     two_pi = 2.0 * math.pi
+    if admittance is not None:
+        ab = admittance.band(low_hz, high_hz)
+        fit = fit_two_mass(
+            ab.frequency_hz,
+            ab.response,
+            ab.std,
+            ab.leave_one_out,
+            MAX_NOTCH_REL_STD,
+            MAX_NOTCH_REL_UNCERTAINTY,
+            sheet_damping,
+        )
+        if fit is not None:
+            return Antiresonance(
+                estimate_rad_s=fit.antiresonance_rad_s,
+                loop_notch_rad_s=two_pi * notch_hz,
+                admittance_notch_rad_s=two_pi * adm_hz,
+                uncertainty_rad_s=fit.uncertainty_rad_s,
+                jackknife_std_rad_s=fit.jackknife_std_rad_s,
+                depth_db=fit.depth_db,
+                resolved=fit.resolved,
+                reason=fit.reason,
+                fit=fit,
+            )
+    resolved = bool(
+        inside and depth_db < -MIN_NOTCH_DB and half_width_hz < MAX_NOTCH_REL_UNCERTAINTY * notch_hz
+    )
     return Antiresonance(
+        estimate_rad_s=two_pi * notch_hz,
         loop_notch_rad_s=two_pi * notch_hz,
         admittance_notch_rad_s=two_pi * adm_hz,
         uncertainty_rad_s=two_pi * half_width_hz,
         jackknife_std_rad_s=two_pi * jack,
         depth_db=depth_db,
-        resolved=bool(
-            inside
-            and depth_db < -MIN_NOTCH_DB
-            and half_width_hz < MAX_NOTCH_REL_UNCERTAINTY * notch_hz
-        ),
+        resolved=resolved,
+        reason=""
+        if resolved
+        else f"the deepest notch of the loop, {depth_db:.1f} dB at {two_pi * notch_hz:.1f} "
+        "rad/s, is too shallow or uncertain (no torque measured for the admittance's fit)",
     )
 
 

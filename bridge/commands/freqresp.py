@@ -71,7 +71,7 @@ def add_excitation_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def plan_maker(args: argparse.Namespace) -> Callable[[float], ExcitationPlan]:
+def plan_maker(args: argparse.Namespace) -> Callable[..., ExcitationPlan]:
     """A function cycle_s -> the plan of ``args`` (UsageError for bad combinations)."""
     from ..commission.freqresp import ExcitationPlan
 
@@ -83,7 +83,7 @@ def plan_maker(args: argparse.Namespace) -> Callable[[float], ExcitationPlan]:
     if not math.isfinite(args.offset_speed):
         raise cli.UsageError("--offset-speed: a finite number")
 
-    def make_plan(cycle_s: float) -> ExcitationPlan:
+    def make_plan(cycle_s: float, sheet_damping: float | None = None) -> ExcitationPlan:
         return ExcitationPlan(
             Multisine(
                 cycle_s, args.period_samples, args.f_min, args.f_max, args.amplitude, args.corner
@@ -93,6 +93,7 @@ def plan_maker(args: argparse.Namespace) -> Callable[[float], ExcitationPlan]:
             offset_speed=args.offset_speed,
             torque_limit=args.torque_limit,
             notch_band_hz=band,
+            sheet_damping=sheet_damping,
         )
 
     return make_plan
@@ -135,9 +136,10 @@ def run(args: argparse.Namespace) -> int:
     from .session_args import started_bridge
 
     make_plan = plan_maker(args)
-    make_plan(regulated_axis(args.axis).control.position_cycle)  # bad values: before the bus
+    axis = regulated_axis(args.axis)
+    make_plan(axis.control.position_cycle)  # bad values: before the bus
     with started_bridge(args) as bridge:
-        plan = make_plan(bridge.controller.params.cycle_s)
+        plan = make_plan(bridge.controller.params.cycle_s, axis.mechanics.damping_ratio)
         try:
             fr = measure(bridge, plan)
         except CommissioningStopped as exc:

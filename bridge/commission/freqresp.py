@@ -57,7 +57,8 @@ class ExcitationPlan:
     transient), how many realizations (1: the multisine as given; more: random phases, seeds
     0, 1, ..., whose spread enters the uncertainty), the feed the axis moves at meanwhile
     (load units/s; 0: standstill), the ramp in and out of that feed (s), the torque limit
-    (N m, or per mille without 6076h), the notch band (Hz)."""
+    (N m, or per mille without 6076h), the notch band (Hz), the axis file's damping ratio of
+    the transmission (None: not stated; :func:`regulator.admittance_fit.fit_two_mass`)."""
 
     multisine: Multisine
     periods: int = 6
@@ -66,6 +67,7 @@ class ExcitationPlan:
     ramp_s: float = 0.5
     torque_limit: float = math.inf
     notch_band_hz: tuple[float, float] | None = None
+    sheet_damping: float | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.periods, bool) or not isinstance(self.periods, int) or self.periods < 3:
@@ -146,7 +148,15 @@ class FrequencyResponse:
             "antiresonance_hz": a.hz,
             "antiresonance_uncertainty_rad_s": a.uncertainty_rad_s,
             "antiresonance_resolved": a.resolved,
+            "antiresonance_method": a.method,
+            "antiresonance_reason": a.reason,
             "notch_depth_db": a.depth_db,
+            "loop_notch_rad_s": a.loop_notch_rad_s,
+            "damping_ratio": None if a.fit is None else a.fit.damping_ratio,
+            "resonance_rad_s": None if a.fit is None else a.fit.resonance_rad_s,
+            "two_mass_inertia_kgm2": None if a.fit is None else a.fit.inertia_kgm2,
+            "two_mass_reduced_chi2": None if a.fit is None else a.fit.reduced_chi2,
+            "two_mass_vs_rigid_p": None if a.fit is None else a.fit.p_rigid,
             "admittance_notch_rad_s": None
             if math.isnan(a.admittance_notch_rad_s)
             else a.admittance_notch_rad_s,
@@ -166,12 +176,16 @@ class FrequencyResponse:
 
     def describe(self) -> str:
         a, b = self.antiresonance, self.bandwidth
+        shape = (
+            f"damping {a.fit.damping_ratio:.3f}, resonance {a.fit.resonance_rad_s:.1f} rad/s"
+            if a.fit is not None
+            else f"notch {a.depth_db:.1f} dB"
+        )
         notch = (
             f"antiresonance {a.rad_s:.1f} rad/s ({a.hz:.2f} Hz) +- {a.uncertainty_rad_s:.1f} "
-            f"rad/s (about 95 %), notch {a.depth_db:.1f} dB"
+            f"rad/s (about 95 %, {a.method}; {shape})"
             if a.resolved
-            else f"no antiresonance resolved (deepest notch {a.depth_db:.1f} dB at "
-            f"{a.rad_s:.1f} rad/s: the load is decoupled or outside the band)"
+            else f"no antiresonance resolved: {a.reason}"
         )
         bw = (
             f"speed-loop bandwidth (-3 dB) {b.frequency_hz:.1f} Hz "
@@ -220,7 +234,7 @@ def measure(bridge: Bridge, plan: ExcitationPlan) -> FrequencyResponse:
         max(plan.multisine.f_min_hz, 4.0 * plan.multisine.resolution_hz),
         plan.multisine.f_max_hz,
     )
-    notch = antiresonance(loop, band[0], band[1], admittance)
+    notch = antiresonance(loop, band[0], band[1], admittance, plan.sheet_damping)
     return FrequencyResponse(
         loop,
         admittance,

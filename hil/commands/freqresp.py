@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
 
     source = simulated_source(args, args.axis)
     axis = source.axis
-    plan = plan_maker(args)(axis.control.position_cycle)
+    plan = plan_maker(args)(axis.control.position_cycle, axis.mechanics.damping_ratio)
     with source.plant() as plant:
         fr = frequency_response(plant, plan, axis.transmission_ratio, axis.control.kv)
     f = np.geomspace(plan.multisine.f_min_hz, plan.multisine.f_max_hz, 600)

@@ -74,6 +74,28 @@ def test_freqresp_runs_on_the_fmu(tmp_path: Path) -> None:
     assert abs(result["antiresonance_rad_s"] / 600.0 - 1.0) < 0.05
 
 
+@pytest.mark.parametrize("seed", [1, 2])
+def test_freqresp_resolves_the_antiresonance_of_fmu_axes_with_an_offset_feed(
+    tmp_path: Path, seed: int
+) -> None:
+    """Development axes 1 and 2 of the clean family (data sheet 471.8 and 784.4 rad/s, damping
+    8 and 9 %): with a 10 mm/s offset feed the two-mass fit of the admittance resolves omega_a
+    within its stated uncertainty and 2 % of the data sheet (the loop's notch had put axis 2
+    at 881.6 rad/s, 12 % off, and called neither resolved)."""
+    from plant_sim.fmu import FmuSpec, nominal_axis
+
+    axis = nominal_axis(FmuSpec.from_text(family_fmu(), f"seed={seed},family=0").load())
+    fmu = ["--fmu", str(family_fmu()), "--fmu-param", f"seed={seed},family=0"]
+    limit = str(axis.control.torque_limit)
+    argv = ["freqresp", *fmu, "--torque-limit", limit, "--offset-speed", "0.01"]
+    assert main([*argv, "--out", str(tmp_path / "f"), "-q"]) == 0
+    result = json.loads((tmp_path / "f" / "freqresp.json").read_text())
+    truth = axis.mechanics.antiresonance
+    assert result["antiresonance_resolved"], result["antiresonance_reason"]
+    assert abs(result["antiresonance_rad_s"] - truth) <= result["antiresonance_uncertainty_rad_s"]
+    assert abs(result["antiresonance_rad_s"] / truth - 1.0) < 0.02
+
+
 def test_bench_measures_the_fmu_beside_the_kernel(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["bench", "--skip-realtime", "--cycles", "300", "--fmu", str(family_fmu()), *FMU]
     assert main(argv) == 0

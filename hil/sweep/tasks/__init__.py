@@ -8,7 +8,7 @@ import importlib
 from .base import Row, Task
 
 #: The task modules of this package, in the order ``--help`` lists them.
-MODULES = ("limit_cycle", "tune", "circular", "diagnose")
+MODULES = ("limit_cycle", "tune", "circular", "diagnose", "freqresp")
 
 TASKS: dict[str, Task] = {}
 for _name in MODULES:
