@@ -36,6 +36,7 @@ from .outcome import Diagnosis
 from .parameters import key_unit
 from .results import DECISION_RULE
 from .summary import (
+    change_text,
     effect_name,
     findings,
     fit_changes,
@@ -396,7 +397,7 @@ def _named(d: Diagnosis) -> str:
         g = next((g for g in d.closed_loop.gate if g.effect is effect), None)
         gate = (
             f"<p>Held-out gate: cost {e(number(g.cost_without))} without it, "
-            f"{e(number(g.cost_with))} with it ({e(percent(100.0 * g.gain))} lower, "
+            f"{e(number(g.cost_with))} with it ({e(change_text(g.gain))}, "
             f"{e(p_text(g.p))}): {'kept' if g.kept else 'not kept'}.</p>"
             if g is not None
             else ""

@@ -87,6 +87,16 @@ def compared(d: Diagnosis, signal: str, values: np.ndarray) -> np.ndarray:
     return values
 
 
+def change_text(gain: float) -> str:
+    """A held-out gain (1 - cost with / cost without) in words: '12.3 % lower'; below zero
+    '4.2 % higher' or, from twice the cost, '104× higher' (a negative 'lower' reads as
+    nonsense)."""
+    if gain >= 0.0:
+        return f"{percent(100.0 * gain)} lower"
+    ratio = 1.0 - gain
+    return f"{percent(100.0 * (ratio - 1.0))} higher" if ratio < 2.0 else f"{number(ratio)}× higher"
+
+
 def p_text(p: float) -> str:
     """'p = 0.0013', 'p < 1e-300' (a p that underflows)."""
     if not math.isfinite(p):
@@ -121,9 +131,7 @@ def _effect_evidence(d: Diagnosis, effect: Effect) -> str:
         parts.append(f"{v.relation}: z = {number(v.z)}, {p_text(v.p)} (named at p < {v.alpha:.2g})")
     g = next((g for g in d.closed_loop.gate if g.effect is effect), None)
     if g is not None:
-        parts.append(
-            f"held-out cost {percent(100.0 * g.gain)} lower with it ({d.validation}, {p_text(g.p)})"
-        )
+        parts.append(f"held-out cost {change_text(g.gain)} with it ({d.validation}, {p_text(g.p)})")
     return "; ".join(parts)
 
 
@@ -173,7 +181,7 @@ def no_gain_finding(d: Diagnosis, g: GateStep) -> Finding:
             "does not predict the held-out data better: not named"
         ),
         f"held-out cost {number(g.cost_without)} without it, {number(g.cost_with)} with it "
-        f"({percent(100.0 * g.gain)} lower, {p_text(g.p)}; at least "
+        f"({change_text(g.gain)}, {p_text(g.p)}; at least "
         f"{percent(100.0 * d.options.min_improvement)} needed; {d.validation})",
     )
 

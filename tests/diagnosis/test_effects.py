@@ -129,3 +129,13 @@ def test_the_registry_holds_every_effect_once_with_its_own_column() -> None:
     assert {e.value: SHORT[e.value] for e in Effect} == {
         e.value: m.short for e, m in MODELS.items()
     }
+
+
+def test_a_cost_change_is_said_the_right_way_round() -> None:
+    """The held-out gate's words: lower where the effect's model predicts better, higher
+    (by a factor where it is large) where it predicts worse -- never a negative 'lower'."""
+    from diagnosis.summary import change_text
+
+    assert change_text(1.0 - 3.25 / 3.61) == "10.0 % lower"
+    assert change_text(1.0 - 3.81 / 3.61) == "5.5 % higher"
+    assert change_text(1.0 - 0.0154 / 0.000148) == "104× higher"
