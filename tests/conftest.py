@@ -31,7 +31,7 @@ import can
 import can.interfaces.virtual as can_virtual
 import pytest
 
-from tests.paths import ROOT
+from tests.paths import checkout_env
 from virtual_bus import BusConfig, Interface, available_modes, open_bus, resolve
 from virtual_bus.netns import NetworkNamespace, netns_problem
 
@@ -209,4 +209,4 @@ def private_netns(netns_skip_reason: str | None) -> Iterator[NetworkNamespace]:
 @pytest.fixture(scope="session")
 def subprocess_env() -> dict[str, str]:
     """os.environ with PYTHONPATH = this checkout (a subprocess imports these packages)."""
-    return {**os.environ, "PYTHONPATH": str(ROOT)}
+    return checkout_env()

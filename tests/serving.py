@@ -3,7 +3,6 @@ tests that talk to it over a bus they own, or as its own process in a network na
 
 from __future__ import annotations
 
-import os
 import signal
 import sys
 import threading
@@ -53,9 +52,9 @@ def drive_process_in(ns: Any, axis: Path, *extra: str, bound_s: float) -> Iterat
     yields once it said its boot-up went out, SIGTERM and its end afterwards. ``bound_s``:
     backstop of the wait for its boot-up line."""
     from tests.command_line import next_line
-    from tests.paths import ROOT
+    from tests.paths import checkout_env
 
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = checkout_env()
     argv = [sys.executable, "-m", "plant_sim", "drive", "--interface", "udp_multicast"]
     drive = ns.popen([*argv, "--axis", str(axis), *extra], env=env)
     try:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import copy
 import itertools
-import os
 import re
 import shutil
 import subprocess
@@ -21,7 +20,7 @@ from bridge.cycle import BridgeState
 from bridge.interpolator import Move
 from bridge.recorder import BASE_COLUMNS, EXTRA_COLUMNS, BusLog, TraceRecorder
 from tests.bridge_helpers import AXIS, PayloadDrive, controller  # tests/ helper module
-from tests.paths import ROOT
+from tests.paths import checkout_env
 from virtual_bus.formats.records import PAGE_BYTES
 from virtual_bus.formats.trace import read_trace
 
@@ -283,7 +282,7 @@ def test_a_bus_log_on_a_full_disk_stops_at_its_last_whole_block(tmp_path: Path) 
         [sys.executable, "-c", FULL_DISK, str(path)],
         capture_output=True,
         text=True,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        env=checkout_env(),
         timeout=120,
         check=True,
     )

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.paths import ROOT
+from tests.paths import ROOT, checkout_env
 
 PAPER_AXIS = ROOT / "config" / "paper_axis.toml"
 BOUND_S = 300.0  # backstop of a wait for a process's state
@@ -78,7 +78,7 @@ def start_bridge(
 ) -> tuple[subprocess.Popen[str], str]:
     """``bridge run`` waiting for its drive, read up to the stderr line starting ``until``;
     returns the process and the scope's address ("" without it)."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = checkout_env()
     argv = [
         *(sys.executable, "-m", "bridge", "run", "--interface", "virtual", "--channel", "scope"),
         *("--axis", str(PAPER_AXIS), "--clock", "lockstep", "--seconds", "1"),

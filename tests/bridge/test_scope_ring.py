@@ -17,7 +17,6 @@ take, and checks what came out against the sequence it wrote.
 from __future__ import annotations
 
 import json
-import os
 import selectors
 import subprocess
 import sys
@@ -26,7 +25,7 @@ from collections.abc import Iterator
 import pytest
 
 from bridge.scope_ring import COLUMNS, RingWriter
-from tests.paths import ROOT
+from tests.paths import checkout_env
 
 CAPACITY = 16
 
@@ -84,7 +83,7 @@ def push(ring: RingWriter, n: int) -> None:
 
 class Reader:
     def __init__(self, ring: RingWriter) -> None:
-        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        env = checkout_env()
         self.proc = subprocess.Popen(
             [sys.executable, "-c", READER, str(ring.fd)],
             stdin=subprocess.PIPE,

@@ -42,7 +42,7 @@ import pytest
 from tests.bridge.test_scope_process import ends, scope_server_pid
 from tests.chromium import PageCheck as Page
 from tests.chromium import chromium_problem, open_page, write_screenshot
-from tests.paths import ROOT
+from tests.paths import ROOT, checkout_env
 from tests.serving import drive_process_in
 from virtual_bus.formats.axis import dump_axis, load_axis
 from virtual_bus.formats.trace import read_trace
@@ -155,7 +155,7 @@ def spoiled(run: Run) -> str | None:
 
 
 def scope_run(ns: NetworkNamespace, axis_file: Path, tmp_path: Path) -> Run:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = checkout_env()
     store = tmp_path / "store.json"
     objects = {"200Ah:00": f"{PDO_TOLERANCE:02x}"}
     doc = {"format": "backlash-bridge parameter store", "version": 1, "objects": objects}

@@ -24,7 +24,7 @@ from pathlib import Path
 import can
 import pytest
 
-from tests.paths import ROOT
+from tests.paths import ROOT, checkout_env
 
 STATE_BOUND_S = 900.0
 
@@ -38,7 +38,7 @@ def need_programs(*names: str) -> None:
 
 def env() -> dict[str, str]:
     """The environment of a child process that imports this checkout's packages."""
-    return {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
+    return {**checkout_env(), "PYTHONUNBUFFERED": "1"}
 
 
 class Program:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.paths import ROOT
+from tests.paths import ROOT, checkout_env
 from virtual_bus.__main__ import main
 from virtual_bus.guest.kernel import (
     FP_REGS_PANIC,
@@ -230,7 +230,7 @@ def test_the_command_line_runs_the_guest(kernel: Kernel) -> None:
         cwd=ROOT,
         capture_output=True,
         text=True,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        env=checkout_env(),
     )
     assert done.returncode == 4
     assert done.stdout == "280\n"  # ARPHRD_CAN

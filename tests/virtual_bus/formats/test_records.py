@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.paths import ROOT
+from tests.paths import checkout_env
 from virtual_bus.formats.records import (
     PAGE_BYTES,
     RecordFile,
@@ -160,7 +160,7 @@ def test_a_failed_write_leaves_the_file_as_before_the_block(tmp_path: Path) -> N
     """RLIMIT_FSIZE (as a full disk would): write() copies up to the limit (a short write),
     the next one fails with EFBIG; the file is cut back to the block's start."""
     path = tmp_path / "r.log"
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = checkout_env()
     done = subprocess.run(
         [sys.executable, "-c", FAILED_WRITE, str(path)],
         capture_output=True,
