@@ -96,6 +96,17 @@ def test_freqresp_resolves_the_antiresonance_of_fmu_axes_with_an_offset_feed(
     assert abs(result["antiresonance_rad_s"] / truth - 1.0) < 0.02
 
 
+def test_the_freqresp_sweep_scores_omega_a_against_the_data_sheet(tmp_path: Path) -> None:
+    """``hil sweep freqresp`` on development axes 1 and 2 (clean): both resolved and right,
+    the row the command's own freqresp.json (its scalars) beside the data sheet."""
+    argv = ["sweep", "freqresp", "--fmu", str(family_fmu()), "--fmu-param", "family=0"]
+    out = tmp_path / "s"
+    assert main([*argv, "--seeds", "1,2", "--workers", "0", "--out", str(out), "--quiet"]) == 0
+    figures = json.loads((out / "summary.json").read_text())["figures"]
+    assert figures["resolved, within its uncertainty and 5 % of the data sheet"] == 2
+    assert figures["resolved but wrong"] == {} and figures["not resolved"] == {}
+
+
 def test_bench_measures_the_fmu_beside_the_kernel(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["bench", "--skip-realtime", "--cycles", "300", "--fmu", str(family_fmu()), *FMU]
     assert main(argv) == 0

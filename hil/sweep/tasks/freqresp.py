@@ -49,28 +49,18 @@ def run_freqresp(spec: FmuSpec, options: Mapping[str, str]) -> Row:
         fr = frequency_response(plant, plan, kr, axis.control.kv)
     a = fr.antiresonance
     sheet = axis.mechanics.antiresonance
-    row: Row = {
-        "offset_m_s": offset,
-        "datasheet_rad_s": sheet,
-        "datasheet_damping": axis.mechanics.damping_ratio,
-        "estimate_rad_s": a.rad_s,
-        "uncertainty_rad_s": a.uncertainty_rad_s,
-        "resolved": a.resolved,
-        "reason": a.reason,
-        "method": a.method,
-        "damping": None if a.fit is None else a.fit.damping_ratio,
-        "reduced_chi2": None if a.fit is None else a.fit.reduced_chi2,
-        "loop_notch_rad_s": a.loop_notch_rad_s,
-    }
+    # the command's own summary (freqresp.json's scalars), and the data sheet beside it
+    row: Row = {k: v for k, v in fr.summary().items() if not isinstance(v, list)}
+    row |= {"datasheet_rad_s": sheet, "datasheet_damping": axis.mechanics.damping_ratio}
     if sheet:
         row["error_share"] = a.rad_s / sheet - 1.0
-        row["within_uncertainty"] = abs(a.rad_s - sheet) <= a.uncertainty_rad_s
+        row["within_uncertainty"] = a.contains(sheet)
     return row | truth(source, "effect", "backlash")
 
 
 def summarize_freqresp(rows: Sequence[Row]) -> dict[str, Any]:
     good = [r for r in rows if not r.get("error") and r.get("datasheet_rad_s")]
-    resolved = [r for r in good if r.get("resolved")]
+    resolved = [r for r in good if r.get("antiresonance_resolved")]
     right = [
         r
         for r in resolved
@@ -84,8 +74,12 @@ def summarize_freqresp(rows: Sequence[Row]) -> dict[str, Any]:
         "resolved": len(resolved),
         "resolved, within its uncertainty and 5 % of the data sheet": len(right),
         "share": len(right) / n if n else None,
-        "resolved but wrong": {str(r["seed"]): r["estimate_rad_s"] for r in wrong},
-        "not resolved": {str(r["seed"]): r.get("reason", "") for r in good if not r["resolved"]},
+        "resolved but wrong": {str(r["seed"]): r["antiresonance_rad_s"] for r in wrong},
+        "not resolved": {
+            str(r["seed"]): r.get("antiresonance_reason", "")
+            for r in good
+            if not r["antiresonance_resolved"]
+        },
         "|error| of the resolved, min / median / max": (
             [errors[0], errors[len(errors) // 2], errors[-1]] if errors else None
         ),
