@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import time
 import traceback
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -115,6 +116,15 @@ class Sweep:
             raise SweepError(
                 f"--option {sorted(unknown)[0]}: not an option of {self.task}; allowed: " + allowed
             )
+        for name, value in self.options.items():
+            # every task's options are numbers (durations, levels, speeds): a word would fail
+            # on every seed, so it is refused before anything runs
+            try:
+                ok = math.isfinite(float(value))
+            except ValueError:
+                ok = False
+            if not ok:
+                raise SweepError(f"--option {name}={value}: a finite number")
         if "seed" in dict(self.spec.parameters):
             raise SweepError("--fmu-param seed=...: the sweep sets seed (give --seeds)")
 

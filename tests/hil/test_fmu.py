@@ -172,6 +172,16 @@ def test_bad_sweep_arguments(
     assert fragment in refused_in_one_line(main, [*base, *argv], capsys)
 
 
+def test_a_sweep_option_that_is_no_number_is_refused_before_anything_runs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "o"
+    argv = ["sweep", "freqresp", "--fmu", str(family_fmu()), "--out", str(out), "--seeds", "1"]
+    line = refused_in_one_line(main, [*argv, "--option", "offset=abc"], capsys)
+    assert "--option offset=abc: a finite number" in line
+    assert not out.exists()
+
+
 def test_bad_fmus_on_the_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     renamed_zip = tmp_path / "renamed.fmu"
     renamed_zip.write_bytes(b"PK not really")
