@@ -175,7 +175,8 @@ def fit_two_mass(
         keep[keep] = near
         w, log_a = w[near], log_a[near]
     sigma = np.maximum(std[keep] / a[keep], MIN_REL_STD)
-    p, se_log_wa = _fit(w, log_a, sigma, _start(w, log_a))
+    # the cut keeps every line up to the peak, so the start stands on the lines kept
+    p, se_log_wa = _fit(w, log_a, sigma, start)
     resid = (acceleration_admittance(p, w) - log_a) / sigma
     n = w.size
     chi2 = float(np.sum(resid**2))

@@ -334,22 +334,12 @@ def antiresonance(
         )
     f = band.frequency_hz
     notch_hz, depth_db, inside = _notch(f, band.response, band.std)
-    keep = (loop.frequency_hz >= low_hz) & (loop.frequency_hz <= high_hz)
-    others = [_notch(f, row[keep], band.std)[0] for row in loop.leave_one_out]
-    n = len(others)
-    jack = math.sqrt((n - 1) / n * float(np.sum((np.array(others) - np.mean(others)) ** 2)))
-    resolution_hz = float(f[1] - f[0])
+    two_pi = 2.0 * math.pi
     adm_hz = math.nan
     if admittance is not None:
         ab = admittance.band(low_hz, high_hz)
         scale = 2j * np.pi * ab.frequency_hz
         adm_hz = _notch(ab.frequency_hz, ab.response * scale, ab.std * np.abs(scale))[0]
-    systematic_hz = 0.0 if math.isnan(adm_hz) else 0.5 * abs(adm_hz - notch_hz)
-    coverage = float(student_t.ppf(0.975, n - 1))  # about 95 % for n - 1 degrees of freedom
-    half_width_hz = math.hypot(coverage * jack, 0.5 * resolution_hz) + systematic_hz
-    two_pi = 2.0 * math.pi
-    if admittance is not None:
-        ab = admittance.band(low_hz, high_hz)
         fit = fit_two_mass(
             ab.frequency_hz,
             ab.response,
@@ -371,6 +361,15 @@ def antiresonance(
                 reason=fit.reason,
                 fit=fit,
             )
+    # the loop's notch is the estimate: its jackknife over the realizations
+    keep = (loop.frequency_hz >= low_hz) & (loop.frequency_hz <= high_hz)
+    others = [_notch(f, row[keep], band.std)[0] for row in loop.leave_one_out]
+    n = len(others)
+    jack = math.sqrt((n - 1) / n * float(np.sum((np.array(others) - np.mean(others)) ** 2)))
+    resolution_hz = float(f[1] - f[0])
+    systematic_hz = 0.0 if math.isnan(adm_hz) else 0.5 * abs(adm_hz - notch_hz)
+    coverage = float(student_t.ppf(0.975, n - 1))  # about 95 % for n - 1 degrees of freedom
+    half_width_hz = math.hypot(coverage * jack, 0.5 * resolution_hz) + systematic_hz
     resolved = bool(
         inside and depth_db < -MIN_NOTCH_DB and half_width_hz < MAX_NOTCH_REL_UNCERTAINTY * notch_hz
     )
@@ -385,7 +384,12 @@ def antiresonance(
         reason=""
         if resolved
         else f"the deepest notch of the loop, {depth_db:.1f} dB at {two_pi * notch_hz:.1f} "
-        "rad/s, is too shallow or uncertain (no torque measured for the admittance's fit)",
+        "rad/s, is too shallow or uncertain ("
+        + (
+            "no torque measured for the admittance's fit)"
+            if admittance is None
+            else "the admittance's lines are in the noise: no two-mass fit)"
+        ),
     )
 
 

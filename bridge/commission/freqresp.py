@@ -129,6 +129,17 @@ class ExcitationPlan:
         return estimate(self.multisine, u[sl], y[sl], 1, self.realizations)
 
 
+#: freqresp.json's keys of the two-mass fit (:class:`regulator.admittance_fit.TwoMassFit`
+#: attribute each; None without a fit).
+FIT_FIELDS = {
+    "damping_ratio": "damping_ratio",
+    "resonance_rad_s": "resonance_rad_s",
+    "two_mass_inertia_kgm2": "inertia_kgm2",
+    "two_mass_reduced_chi2": "reduced_chi2",
+    "two_mass_vs_rigid_p": "p_rigid",
+}
+
+
 @dataclass(frozen=True)
 class FrequencyResponse:
     """What the test measured."""
@@ -152,11 +163,7 @@ class FrequencyResponse:
             "antiresonance_reason": a.reason,
             "notch_depth_db": a.depth_db,
             "loop_notch_rad_s": a.loop_notch_rad_s,
-            "damping_ratio": None if a.fit is None else a.fit.damping_ratio,
-            "resonance_rad_s": None if a.fit is None else a.fit.resonance_rad_s,
-            "two_mass_inertia_kgm2": None if a.fit is None else a.fit.inertia_kgm2,
-            "two_mass_reduced_chi2": None if a.fit is None else a.fit.reduced_chi2,
-            "two_mass_vs_rigid_p": None if a.fit is None else a.fit.p_rigid,
+            **{key: getattr(a.fit, name, None) for key, name in FIT_FIELDS.items()},
             "admittance_notch_rad_s": None
             if math.isnan(a.admittance_notch_rad_s)
             else a.admittance_notch_rad_s,

@@ -13,6 +13,7 @@ nothing), so an estimate called resolved must hold it within its uncertainty, an
 
 from __future__ import annotations
 
+import argparse
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -28,23 +29,20 @@ REQUIRED_SHARE = 0.05
 
 
 def run_freqresp(spec: FmuSpec, options: Mapping[str, str]) -> Row:
-    from bridge.commission.freqresp import ExcitationPlan
+    from bridge.commands.freqresp import add_excitation_arguments, plan_maker
     from hil.offline import frequency_response
-    from regulator.frequency_response import Multisine
 
     source = fmu_source(spec)
     axis = source.axis
     kr = axis.transmission_ratio
-    amplitude = 1.0
-    offset = float(options.get("offset", max(OFFSET_FLOOR, 2.0 * amplitude / kr)))
-    plan = ExcitationPlan(
-        Multisine(axis.control.position_cycle, 1024, 1.0, 450.0, amplitude, 20.0),
-        periods=3,
-        realizations=8,
-        offset_speed=offset,
-        torque_limit=axis.control.torque_limit or math.inf,
-        sheet_damping=axis.mechanics.damping_ratio,
-    )
+    # the command's own excitation: its arguments at their defaults (the one required, the
+    # torque limit, is the data sheet's), at the offset feed
+    parser = argparse.ArgumentParser()
+    add_excitation_arguments(parser)
+    args = parser.parse_args(["--torque-limit", "1"])
+    args.torque_limit = axis.control.torque_limit or math.inf
+    args.offset_speed = float(options.get("offset", max(OFFSET_FLOOR, 2.0 * args.amplitude / kr)))
+    plan = plan_maker(args)(axis.control.position_cycle, axis.mechanics.damping_ratio)
     with source.plant() as plant:
         fr = frequency_response(plant, plan, kr, axis.control.kv)
     a = fr.antiresonance
